@@ -1,0 +1,1 @@
+"""data_gen: procedurally rendered synthetic stereo pairs with exact ground truth."""

@@ -1,0 +1,122 @@
+"""One input-check helper family used by every public entry point.
+
+Every failure raises :class:`StereoInputError` (a ``ValueError``) or ``TypeError`` with a message that names
+the argument, what was expected and what was received (shapes and dtypes, never tensor values).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+
+class StereoInputError(ValueError):
+    """Bad input to a public stereonet function; the message names the argument."""
+
+
+def _shape(t: torch.Tensor) -> tuple[int, ...]:
+    return tuple(int(s) for s in t.shape)
+
+
+def check_tensor(x: object, name: str) -> torch.Tensor:
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{name}: expected a torch.Tensor, got {type(x).__name__}")
+    return x
+
+
+def check_shape(x: torch.Tensor, dims: Sequence[str], name: str) -> dict[str, int]:
+    """Check ``x`` against symbolic ``dims`` like ``["B", "3", "H", "W"]`` (``"*"`` = any leading dims).
+
+    Digits must match exactly; letters bind to sizes (the same letter must bind to the same size).
+    Returns the bindings, e.g. ``{"B": 2, "H": 64, "W": 128}``.
+    """
+    check_tensor(x, name)
+    shape = _shape(x)
+    dims = list(dims)
+    expected = "(" + ", ".join(dims) + ")"
+    if dims and dims[0] == "*":
+        dims = dims[1:]
+        if len(shape) < len(dims):
+            raise StereoInputError(f"{name}: expected shape {expected}, got {shape}")
+        shape = shape[len(shape) - len(dims):]
+    elif len(shape) != len(dims):
+        raise StereoInputError(f"{name}: expected shape {expected}, got {_shape(x)}")
+    bound: dict[str, int] = {}
+    for d, s in zip(dims, shape):
+        if d.isdigit():
+            if int(d) != s:
+                raise StereoInputError(f"{name}: expected shape {expected}, got {_shape(x)}")
+        else:
+            if d in bound and bound[d] != s:
+                raise StereoInputError(f"{name}: expected shape {expected} with equal '{d}' sizes, got {_shape(x)}")
+            bound[d] = s
+    return bound
+
+
+def check_finite(x: torch.Tensor, name: str) -> None:
+    if x.is_floating_point() and not bool(torch.isfinite(x).all()):
+        raise StereoInputError(f"{name}: expected finite values, got NaN or inf")
+
+
+def check_image(x: object, name: str = "image", channels: Sequence[int] = (1, 3)) -> torch.Tensor:
+    """Check a float image batch :math:`(B, C, H, W)`, C in ``channels``, finite, non-empty."""
+    x = check_tensor(x, name)
+    if x.dim() != 4:
+        raise StereoInputError(f"{name}: expected shape (B, C, H, W), got {_shape(x)}")
+    if not x.is_floating_point():
+        raise TypeError(f"{name}: expected a floating-point image in [0, 1], got dtype {x.dtype}")
+    b, c, h, w = _shape(x)
+    if b == 0 or h == 0 or w == 0:
+        raise StereoInputError(f"{name}: expected a non-empty image, got shape {_shape(x)}")
+    if c not in channels:
+        raise StereoInputError(f"{name}: expected {' or '.join(map(str, channels))} channels, got {c} (shape {_shape(x)})")
+    check_finite(x, name)
+    return x
+
+
+def check_image_pair(left: object, right: object, channels: Sequence[int] = (1, 3)) -> tuple[torch.Tensor, torch.Tensor]:
+    """Check a stereo pair: both valid images of the same shape, dtype and device."""
+    left = check_image(left, "left", channels)
+    right = check_image(right, "right", channels)
+    if left.shape != right.shape:
+        raise StereoInputError(f"right: expected the same shape as left {_shape(left)}, got {_shape(right)}")
+    if left.dtype != right.dtype:
+        raise TypeError(f"right: expected the same dtype as left ({left.dtype}), got {right.dtype}")
+    if left.device != right.device:
+        raise StereoInputError(f"right: expected the same device as left ({left.device}), got {right.device}")
+    return left, right
+
+
+def check_max_disp(max_disp: object, width: int, name: str = "max_disp") -> int:
+    """Check a disparity range: an integer with ``0 < max_disp < width``."""
+    if isinstance(max_disp, bool) or not isinstance(max_disp, int | float) or int(max_disp) != max_disp:
+        raise TypeError(f"{name}: expected a positive integer, got {max_disp!r}")
+    max_disp = int(max_disp)
+    if max_disp <= 0 or max_disp >= width:
+        raise StereoInputError(f"{name}: expected 0 < {name} < image width ({width}), got {max_disp}")
+    return max_disp
+
+
+def check_window(size: object, name: str = "window") -> int:
+    """Check an odd positive window size."""
+    if isinstance(size, bool) or not isinstance(size, int) or size <= 0 or size % 2 == 0:
+        raise StereoInputError(f"{name}: expected an odd positive integer, got {size!r}")
+    return size
+
+
+def check_stereo_inputs(left: object, right: object, max_disp: object,
+                        channels: Sequence[int] = (1, 3)) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """The check every matcher runs first: a valid pair and ``0 < max_disp < W``."""
+    left, right = check_image_pair(left, right, channels)
+    return left, right, check_max_disp(max_disp, left.shape[-1])
+
+
+def check_cost_volume(cost: object, name: str = "cost") -> torch.Tensor:
+    cost = check_tensor(cost, name)
+    check_shape(cost, ["B", "D", "H", "W"], name)
+    if not cost.is_floating_point():
+        raise TypeError(f"{name}: expected a floating-point cost volume, got {cost.dtype}")
+    if cost.shape[1] == 0:
+        raise StereoInputError(f"{name}: expected at least one disparity level, got shape {_shape(cost)}")
+    return cost
