@@ -22,7 +22,8 @@ MatcherFn = Callable[..., StereoOutput]
 # Modules that register matchers when imported, one per family (each owned by its family's package).
 _PROVIDERS = (
     "stereonet.baselines",          # opencv-bm, opencv-sgbm
-    "stereonet.optimize.registered",  # bm-*, dp, sgm, bp, graphcut
+    "stereonet.optimize.registered_local",   # bm-*, sgm
+    "stereonet.optimize.registered_global",  # dp, bp, graphcut
     "stereonet.models.registered",    # siamese, siamese-sgm, dispnet, smd
 )
 
