@@ -1,0 +1,228 @@
+"""Disparity error metrics: EPE, bad-τ, KITTI D1, density, SMD-Nets soft edge error (SEE).
+
+Every metric runs under ``torch.no_grad`` and returns a Python float; **do not use these as training
+losses** (no gradients, thresholded counts). Shapes: ``pred``, ``gt`` are :math:`(B, 1, H, W)`, :math:`(B, H, W)`
+or :math:`(H, W)` (torch or numpy); masks are bool of the same shape.
+
+Which pixels count:
+    The evaluated set is ``gt_valid & mask`` (``mask`` selects all / noc / occ). A pixel the method leaves
+    without an answer (``pred_valid`` False) is an **error** for bad-τ and D1 (its error is taken as +inf),
+    so sparse methods cannot look better by abstaining; the share they do answer is reported by
+    :func:`density`. EPE (and SEE) have no finite value for a missing answer, so they average only over
+    evaluated pixels the method predicts (``gt_valid & mask & pred_valid``); always read them together
+    with density.
+
+Averaging:
+    ``reduction="pixel"`` (default) pools every evaluated pixel of the batch into one mean / rate (the
+    KITTI and Middlebury convention for a single image; for a dataset it weights images by their number of
+    valid pixels). ``reduction="image"`` computes the metric per image and then averages over the images
+    that have evaluated pixels (each image weighs the same). Rates are percentages in [0, 100]. A metric
+    over an empty pixel set is ``nan`` (e.g. ``*_occ`` on an image without occlusions): "undefined", not 0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from stereonet.checks import StereoInputError
+
+__all__ = [
+    "bad_pixel_rate", "d1_kitti", "density", "depth_discontinuities", "end_point_error", "epe", "evaluate",
+    "soft_edge_error",
+]
+
+
+def _as_b1hw(x, name: str, dtype: torch.dtype | None = torch.float64) -> torch.Tensor:
+    """(H, W), (B, H, W) or (B, 1, H, W), torch or numpy -> (B, 1, H, W) on CPU."""
+    if x is None:
+        raise TypeError(f"{name}: expected a tensor or array, got None")
+    t = torch.from_numpy(np.asarray(x)) if not isinstance(x, torch.Tensor) else x.detach()
+    if t.dim() == 2:
+        t = t[None, None]
+    elif t.dim() == 3:
+        t = t[:, None]
+    elif t.dim() != 4 or t.shape[1] != 1:
+        raise StereoInputError(f"{name}: expected shape (B, 1, H, W), (B, H, W) or (H, W), got {tuple(t.shape)}")
+    if dtype is None:
+        if t.dtype != torch.bool:
+            raise TypeError(f"{name}: expected a bool mask, got {t.dtype}")
+        return t.cpu()
+    if not (t.is_floating_point() or t.dtype in (torch.uint8, torch.int16, torch.int32, torch.int64)):
+        raise TypeError(f"{name}: expected a real-valued disparity, got {t.dtype}")
+    return t.cpu().to(dtype)
+
+
+def _inputs(pred, gt, gt_valid, pred_valid=None, mask=None):
+    """Validate and bring everything to (B, 1, H, W): pred/gt float64 (0 where invalid), masks bool."""
+    gt_t = _as_b1hw(gt, "gt")
+    shape = tuple(gt_t.shape)
+    gv = _as_b1hw(gt_valid, "gt_valid", None) if gt_valid is not None else torch.isfinite(gt_t)
+    pr = _as_b1hw(pred, "pred")
+    pv = _as_b1hw(pred_valid, "pred_valid", None) if pred_valid is not None else torch.ones(shape, dtype=torch.bool)
+    m = _as_b1hw(mask, "mask", None) if mask is not None else torch.ones(shape, dtype=torch.bool)
+    for name, t in (("pred", pr), ("gt_valid", gv), ("pred_valid", pv), ("mask", m)):
+        if tuple(t.shape) != shape:
+            raise StereoInputError(f"{name}: expected shape {shape} like gt, got {tuple(t.shape)}")
+    if not bool(torch.isfinite(gt_t[gv]).all()):
+        raise StereoInputError("gt: expected finite values where gt_valid is True, got NaN or inf")
+    if not bool(torch.isfinite(pr[pv]).all()):
+        raise StereoInputError("pred: expected finite values where pred_valid is True, got NaN or inf "
+                               "(mark such pixels invalid through pred_valid)")
+    gt_t = torch.where(gv, gt_t, torch.zeros_like(gt_t))
+    pr = torch.where(pv, pr, torch.zeros_like(pr))
+    return pr, gt_t, gv, pv, m
+
+
+def _reduce(values: torch.Tensor, select: torch.Tensor, reduction: str) -> float:
+    """Mean of ``values`` over ``select`` (both (B, 1, H, W)), pooled or per image."""
+    if reduction == "pixel":
+        n = int(select.sum())
+        return float(values[select].sum() / n) if n else math.nan
+    if reduction == "image":
+        per_image = []
+        for v, s in zip(values, select):
+            if bool(s.any()):
+                per_image.append(float(v[s].mean()))
+        return float(np.mean(per_image)) if per_image else math.nan
+    raise StereoInputError(f"reduction: expected 'pixel' or 'image', got {reduction!r}")
+
+
+def _error_with_misses(pr, gt, pv) -> torch.Tensor:
+    """|pred - gt| with +inf where the method gives no answer (counts as an error at every threshold)."""
+    err = (pr - gt).abs()
+    return torch.where(pv, err, torch.full_like(err, math.inf))
+
+
+@torch.no_grad()
+def end_point_error(pred, gt, gt_valid=None, pred_valid=None, mask=None, reduction: str = "pixel") -> float:
+    """EPE: mean absolute disparity error in pixels over ``gt_valid & mask & pred_valid``.
+
+    Pixels without a prediction are excluded (see the module docstring; report :func:`density` beside it).
+    Do not use as a loss.
+    """
+    pr, gt_t, gv, pv, m = _inputs(pred, gt, gt_valid, pred_valid, mask)
+    return _reduce((pr - gt_t).abs(), gv & m & pv, reduction)
+
+
+epe = end_point_error
+
+
+@torch.no_grad()
+def bad_pixel_rate(pred, gt, gt_valid=None, tau: float = 1.0, pred_valid=None, mask=None,
+                   reduction: str = "pixel") -> float:
+    """Bad-τ: percentage of evaluated pixels (``gt_valid & mask``) with ``|pred - gt| > tau``.
+
+    Pixels without a prediction count as bad. Any ``tau >= 0``. Do not use as a loss.
+    """
+    if not tau >= 0:
+        raise StereoInputError(f"tau: expected a threshold >= 0 pixels, got {tau}")
+    pr, gt_t, gv, pv, m = _inputs(pred, gt, gt_valid, pred_valid, mask)
+    bad = (_error_with_misses(pr, gt_t, pv) > tau).double() * 100.0
+    return _reduce(bad, gv & m, reduction)
+
+
+@torch.no_grad()
+def d1_kitti(pred, gt, gt_valid=None, pred_valid=None, mask=None, reduction: str = "pixel") -> float:
+    """KITTI D1: percentage of evaluated pixels with error > 3 px **and** > 5 % of the true disparity.
+
+    Outlier definition of the KITTI 2015 stereo devkit (``E > 3 & E / |D_gt| > 0.05``; Menze & Geiger,
+    CVPR 2015). Pixels without a prediction count as outliers. Do not use as a loss.
+    """
+    pr, gt_t, gv, pv, m = _inputs(pred, gt, gt_valid, pred_valid, mask)
+    err = _error_with_misses(pr, gt_t, pv)
+    outlier = (err > 3.0) & (err > 0.05 * gt_t.abs())  # inf > x is True for missing predictions
+    return _reduce(outlier.double() * 100.0, gv & m, reduction)
+
+
+@torch.no_grad()
+def density(pred_valid, gt_valid=None, mask=None, reduction: str = "pixel") -> float:
+    """Percentage of evaluated pixels (``gt_valid & mask``, all pixels when both are None) that the method
+    predicts (``pred_valid``)."""
+    pv = _as_b1hw(pred_valid, "pred_valid", None)
+    gv = _as_b1hw(gt_valid, "gt_valid", None) if gt_valid is not None else torch.ones_like(pv)
+    m = _as_b1hw(mask, "mask", None) if mask is not None else torch.ones_like(pv)
+    for name, t in (("gt_valid", gv), ("mask", m)):
+        if t.shape != pv.shape:
+            raise StereoInputError(f"{name}: expected shape {tuple(pv.shape)} like pred_valid, got {tuple(t.shape)}")
+    return _reduce(pv.double() * 100.0, gv & m, reduction)
+
+
+@torch.no_grad()
+def depth_discontinuities(gt, gt_valid=None, threshold: float = 1.0, dilation: int = 0) -> torch.Tensor:
+    """Pixels next to a ground-truth disparity jump: bool :math:`(B, 1, H, W)`.
+
+    A valid pixel is marked when one of its 4-neighbours is valid and differs by more than ``threshold``
+    pixels (both sides of the jump are marked), then the mask is dilated by a ``dilation`` x ``dilation``
+    box when ``dilation > 1`` (as SMD-Nets' ``get_boundaries``, which defaults to threshold 1, no dilation).
+    """
+    _, gt_t, gv, _, _ = _inputs(gt, gt, gt_valid)
+    edges = torch.zeros_like(gv)
+    jump_x = ((gt_t[..., :, 1:] - gt_t[..., :, :-1]).abs() > threshold) & gv[..., :, 1:] & gv[..., :, :-1]
+    jump_y = ((gt_t[..., 1:, :] - gt_t[..., :-1, :]).abs() > threshold) & gv[..., 1:, :] & gv[..., :-1, :]
+    edges[..., :, 1:] |= jump_x
+    edges[..., :, :-1] |= jump_x
+    edges[..., 1:, :] |= jump_y
+    edges[..., :-1, :] |= jump_y
+    if dilation > 1:
+        pad = (dilation // 2, (dilation - 1) // 2, dilation // 2, (dilation - 1) // 2)
+        edges = F.max_pool2d(F.pad(edges.double(), pad), dilation, stride=1) > 0
+    return edges & gv
+
+
+@torch.no_grad()
+def soft_edge_error(pred, gt, gt_valid=None, k: int = 3, pred_valid=None, threshold: float = 1.0,
+                    dilation: int = 0, reduction: str = "pixel") -> float:
+    """Soft edge error (SEE) of SMD-Nets (Tosi, Liao, Schmitt, Geiger, CVPR 2021), in pixels.
+
+    On the depth-discontinuity pixels of the ground truth (:func:`depth_discontinuities` with
+    ``threshold``/``dilation``), the error of each prediction against the **closest** ground-truth disparity
+    in its ``k`` x ``k`` neighbourhood (``k = 3`` is SMD-Nets' radius 1): ``min_q |pred(p) - gt(q)|``,
+    averaged over those pixels. It forgives an edge placed one pixel off but not a blurred edge (a value
+    between foreground and background is far from both). Unlike the reference code, neighbours outside
+    the image or without ground truth are skipped instead of compared with 0. Pixels without a prediction
+    are excluded, as for EPE. Do not use as a loss.
+    """
+    if isinstance(k, bool) or not isinstance(k, int) or k < 1 or k % 2 == 0:
+        raise StereoInputError(f"k: expected an odd positive window size, got {k!r}")
+    pr, gt_t, gv, pv, _ = _inputs(pred, gt, gt_valid, pred_valid)
+    b, _, h, w = gt_t.shape
+    edges = depth_discontinuities(gt_t, gv, threshold, dilation)
+    gt_inf = torch.where(gv, gt_t, torch.full_like(gt_t, math.inf))
+    neigh = F.unfold(F.pad(gt_inf, (k // 2,) * 4, value=math.inf), k)  # Bx(k*k)x(H*W)
+    neigh = neigh.reshape(b, k * k, h, w)  # Bx(k*k)xHxW
+    err = (neigh - pr).abs().amin(dim=1, keepdim=True)  # Bx1xHxW, finite wherever gt_valid (centre included)
+    return _reduce(err, edges & pv, reduction)
+
+
+@torch.no_grad()
+def evaluate(pred, gt, gt_valid=None, pred_valid=None, occlusion=None, reduction: str = "pixel",
+             see: bool = True) -> dict[str, float]:
+    """All standard metrics in one dict (the interface eval.py and training logs share).
+
+    Keys: ``epe``, ``bad1``, ``bad2``, ``bad4``, ``d1``, ``density`` (rates in percent 0–100), ``see``
+    (when ``see``), and when ``occlusion`` (bool, True = occluded) is given the same six with suffixes
+    ``_noc`` (``gt_valid & ~occlusion``) and ``_occ`` (``gt_valid & occlusion``). Averaging and the
+    treatment of missing predictions are described in the module docstring. Do not use as a loss.
+    """
+    pr, gt_t, gv, pv, _ = _inputs(pred, gt, gt_valid, pred_valid)
+    masks = {"": None}
+    if occlusion is not None:
+        occ = _as_b1hw(occlusion, "occlusion", None)
+        if occ.shape != gt_t.shape:
+            raise StereoInputError(f"occlusion: expected shape {tuple(gt_t.shape)} like gt, got {tuple(occ.shape)}")
+        masks["_noc"] = ~occ
+        masks["_occ"] = occ
+    out: dict[str, float] = {}
+    for suffix, m in masks.items():
+        out["epe" + suffix] = end_point_error(pr, gt_t, gv, pv, m, reduction)
+        for tau in (1, 2, 4):
+            out[f"bad{tau}{suffix}"] = bad_pixel_rate(pr, gt_t, gv, float(tau), pv, m, reduction)
+        out["d1" + suffix] = d1_kitti(pr, gt_t, gv, pv, m, reduction)
+        out["density" + suffix] = density(pv, gv, m, reduction)
+    if see:
+        out["see"] = soft_edge_error(pr, gt_t, gv, pred_valid=pv, reduction=reduction)
+    return out
