@@ -1,0 +1,99 @@
+"""Pieces shared by the command-line mains (eval, infer, bench): one-line errors, memory meter, timing.
+
+Peak memory: ``tracemalloc`` does not see torch's (or OpenCV's, or numba's) native allocations, so
+:class:`PeakMemory` measures the *resident set size* of the process instead: a daemon thread samples
+``/proc/self/statm`` every millisecond while the measured call runs, and ``resource.getrusage``'s
+``ru_maxrss`` (the process-wide high-water mark) is read before and after, which catches a peak the
+sampler missed (a kernel holding the GIL) whenever that peak is a new high for the process. The number
+reported is the peak RSS during the call minus the RSS just before it: the extra memory the call needed.
+Memory that an allocator keeps cached from an earlier call is not counted again, so it is a lower bound
+for methods that run after a bigger one; run a single method for an exact figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import NoReturn
+
+_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
+_STATM = Path("/proc/self/statm")
+
+# Errors that come from the user's input (bad paths, specs, names, shapes): one line, exit code 2.
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, TypeError, FileNotFoundError, NotADirectoryError,
+                                                 IsADirectoryError, PermissionError, FileExistsError)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse that reports a usage error as one line (``prog: error: ...``) instead of usage + error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def fail(prog: str, message: object, code: int = 2) -> int:
+    """Print ``prog: error: message`` on one line to stderr and return ``code`` (for ``return fail(...)``)."""
+    text = " ".join(str(message).split()) or type(message).__name__
+    print(f"{prog}: error: {text}", file=sys.stderr)
+    return code
+
+
+def rss_bytes() -> int:
+    """Current resident set size of this process in bytes (0 where /proc is missing)."""
+    try:
+        return int(_STATM.read_text().split()[1]) * _PAGE
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
+def max_rss_bytes() -> int:
+    """Process-wide peak resident set size so far (``ru_maxrss``, KiB on Linux) in bytes."""
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+class PeakMemory:
+    """Context manager: ``peak_mib`` = peak RSS during the block minus RSS at entry, in MiB (see module doc)."""
+
+    def __init__(self, interval: float = 0.001) -> None:
+        self.interval = interval
+        self.peak_mib = 0.0
+        self._stop = threading.Event()
+
+    def _sample(self) -> None:
+        while not self._stop.wait(self.interval):
+            self._peak = max(self._peak, rss_bytes())
+
+    def __enter__(self) -> PeakMemory:
+        self._base = rss_bytes()
+        self._peak = self._base
+        self._maxrss_before = max_rss_bytes()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+        peak = max(self._peak, rss_bytes())
+        maxrss_after = max_rss_bytes()
+        if maxrss_after > self._maxrss_before:  # a new process-wide high was set inside the block
+            peak = max(peak, maxrss_after)
+        self.peak_mib = max(0.0, (peak - self._base) / 2 ** 20)
+
+
+class Stopwatch:
+    """Context manager: ``seconds`` of wall-clock time spent in the block."""
+
+    def __enter__(self) -> Stopwatch:
+        self._t0 = time.perf_counter()
+        self.seconds = 0.0
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.seconds = time.perf_counter() - self._t0

@@ -1,0 +1,420 @@
+"""eval.py: every registered method on the same datasets, one table of standard metrics.
+
+    python eval.py --methods A,B,...|all --data SPEC[,SPEC...] [--max-disp N] [--json FILE] [--plots DIR]
+                   [--fill] [--shard i/n]
+
+SPEC is ``synthetic[:N]``, ``middlebury2001:DIR``, ``middlebury2003:DIR``, ``middlebury2014:DIR``,
+``kitti2012:DIR``, ``kitti2015:DIR``, ``folder:DIR``, or ``real`` (every dataset in ../shared/data, one table
+row per dataset). Datasets come from :func:`stereonet.data.load_dataset`, metrics from
+:func:`stereonet.metrics.evaluate`.
+
+What the numbers mean:
+- Rates (bad-1/2/4, D1, density) are percentages 0-100. EPE is in pixels. Every metric is computed per pair
+  over the pixels with ground truth and then averaged over the pairs (per-image averaging, as the
+  Middlebury and KITTI tables do).
+- ``all`` metrics count pixels a method leaves invalid as errors (their end-point error is measured at
+  disparity 0), and ``density`` reports the valid share; ``*_noc`` metrics use only non-occluded pixels and
+  appear when the dataset has an occlusion mask. ``--fill`` applies one shared filling
+  (:func:`stereonet.optimize.fill.fill_occlusions`) to every method's invalid pixels for a dense comparison.
+- SEE (soft edge error, SMD-Nets) is computed for every method, from its disparity, on the ground truth's
+  depth-discontinuity pixels, so sharp and smooth edges can be compared across all methods alike.
+- ``seconds`` is the wall time per pair of the matcher call alone (not loading, filling or metrics), after one
+  untimed warm-up call per method on a small crop (JIT compilation and weight loading excluded).
+- ``peak_mib`` is the largest extra resident memory of one matcher call over the pairs (see
+  :mod:`stereonet.cli.common` for how it is measured and its limits).
+
+A method that raises on a pair does not stop the run: the pair is counted in the row's ``failed`` key, the
+first error message is kept in ``error``, the metrics average the pairs that worked, and the table marks the
+row with ``!`` and prints the errors below it. The exit code is 0 when every method ran on every pair, 1 when
+any failed, 2 for bad input (unknown method, missing dataset...), which is reported as one line.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from stereonet.cli.common import USER_ERRORS, OneLineParser, PeakMemory, Stopwatch, fail
+from stereonet.types import StereoOutput
+
+PROG = "eval.py"
+METRICS = ("epe", "bad1", "bad2", "bad4", "d1", "density")
+SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+# Dataset kinds in ../shared/data that ``real`` expands to, in table order.
+REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2014", "kitti2012", "kitti2015")
+
+
+# ----------------------------------------------------------------------------------------------- parsing
+
+def parse_methods(text: str) -> list[str]:
+    """``"all"`` or a comma-separated list of registered names -> names (unknown name: StereoInputError)."""
+    from stereonet import matchers
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ValueError("--methods: expected a comma-separated list of method names or 'all', got nothing")
+    out: list[str] = []
+    for n in names:
+        for m in (matchers.available() if n == "all" else [matchers.spec(n).name]):
+            if m not in out:
+                out.append(m)
+    return out
+
+
+def expand_data_specs(text: str, shared: Path | None = None) -> list[str]:
+    """Split ``SPEC[,SPEC...]`` and expand ``real`` into one spec per dataset folder in ../shared/data."""
+    shared = SHARED_DATA if shared is None else shared
+    specs: list[str] = []
+    for s in (s.strip() for s in text.split(",")):
+        if not s:
+            continue
+        if s == "real":
+            if not shared.is_dir():
+                raise FileNotFoundError(f"--data real: the shared real data folder {shared} does not exist")
+            specs += [f"{k}:{shared / k}" for k in REAL_KINDS if (shared / k).is_dir()]
+        else:
+            specs.append(s)
+    if not specs:
+        raise ValueError("--data: expected SPEC[,SPEC...], got nothing")
+    return specs
+
+
+def dataset_label(spec: str) -> str:
+    """Short name for a table row: ``kitti2015:/a/b/kitti2015`` -> ``kitti2015``; ``folder:/x/y`` -> ``folder:y``."""
+    kind, _, arg = spec.partition(":")
+    if not arg or kind == "synthetic":
+        return spec
+    name = Path(arg.rstrip("/")).name
+    return kind if name == kind else f"{kind}:{name}"
+
+
+def parse_shard(text: str | None) -> tuple[int, int]:
+    """``"i/n"`` -> (i, n) with 0 <= i < n; None -> (0, 1)."""
+    if text is None:
+        return 0, 1
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard: expected i/n with integers, e.g. 0/4, got {text!r}") from None
+    if n < 1 or not 0 <= i < n:
+        raise ValueError(f"--shard: expected 0 <= i < n, got {text!r}")
+    return i, n
+
+
+# --------------------------------------------------------------------------------------------- running
+
+@dataclass
+class PairResult:
+    """One method on one pair: metrics (None when the method failed), time, memory, error."""
+
+    method: str
+    dataset: str
+    pair: str
+    metrics: dict[str, float] | None
+    seconds: float
+    peak_mib: float
+    error: str | None = None
+
+
+@dataclass
+class Evaluation:
+    """Everything a run measured: per-pair results and the aggregated rows (one per method and dataset)."""
+
+    pairs: list[PairResult] = field(default_factory=list)
+    rows: list[dict] = field(default_factory=list)
+
+
+def _batch(x: torch.Tensor) -> torch.Tensor:
+    return x if x.dim() == 4 else x[None]
+
+
+def apply_fill(out: StereoOutput) -> StereoOutput:
+    """The shared filling of ``--fill``: invalid pixels get :func:`fill_occlusions`' values, all valid."""
+    from stereonet.optimize.fill import fill_occlusions
+
+    disp = fill_occlusions(out.disparity, out.valid)
+    valid = torch.isfinite(disp)
+    return StereoOutput(torch.where(valid, disp, torch.zeros_like(disp)), valid, out.confidence,
+                        out.uncertainty, None, out.extras)
+
+
+def pair_metrics(out: StereoOutput, item: dict) -> dict[str, float]:
+    """Metrics of one prediction against the item's ground truth (``evaluate`` + SEE when available)."""
+    from stereonet import metrics
+
+    gt = _batch(item["disparity"]).to(out.disparity)
+    gt_valid = _batch(item["valid"]).bool()
+    occ = item.get("occlusion")
+    occ = None if occ is None else _batch(occ).bool()
+    with torch.no_grad():
+        res = {k: float(v) for k, v in metrics.evaluate(out.disparity, gt, gt_valid, pred_valid=out.valid,
+                                                        occlusion=occ).items()}
+        see = getattr(metrics, "soft_edge_error", None)
+        if see is not None:
+            try:
+                res["see"] = float(see(torch.where(out.valid, out.disparity, torch.zeros_like(out.disparity)),
+                                       gt, gt_valid))
+            except (ValueError, TypeError) as e:  # no discontinuity pixels in this GT, or another signature
+                warnings.warn(f"soft_edge_error skipped: {e}", stacklevel=2)
+    return res
+
+
+def _warm_up(fn: Callable, item: dict, max_disp: int) -> None:
+    """One untimed call on a small crop (JIT compilation, weight loading); errors surface in the real call."""
+    left, right = _batch(item["left"]), _batch(item["right"])
+    h, w = left.shape[-2:]
+    md = min(max_disp, 16)
+    hh, ww = min(h, 32), min(w, md + 48)
+    try:
+        fn(left[..., :hh, :ww].contiguous(), right[..., :hh, :ww].contiguous(), md)
+    except Exception:  # noqa: BLE001 - the timed call reports it
+        pass
+
+
+def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int | None = None, fill: bool = False,
+                   shard: tuple[int, int] = (0, 1), plots: Path | None = None, progress: bool = True,
+                   options: dict[str, dict] | None = None, load: Callable | None = None) -> Evaluation:
+    """Run every method on every pair of every dataset spec; return per-pair results and table rows.
+
+    ``load`` (default :func:`stereonet.data.load_dataset`) maps a spec to a dataset of item dicts; it is
+    called for every spec before anything runs, so a bad spec fails fast. ``options[name]`` are keyword
+    options bound to matcher ``name``.
+    """
+    from tqdm import tqdm
+
+    from stereonet import matchers
+
+    if load is None:
+        from stereonet.data import load_dataset as load
+    datasets = [(dataset_label(s), load(s)) for s in specs]
+    fns = {m: matchers.get_matcher(m, **(options or {}).get(m, {})) for m in methods}
+    i_shard, n_shard = shard
+    indices = {label: [i for i in range(len(ds)) if i % n_shard == i_shard] for label, ds in datasets}
+    total = sum(len(v) for v in indices.values()) * len(methods)
+    result = Evaluation()
+    warmed: set[str] = set()
+    with tqdm(total=total, desc="eval", unit="run", disable=not progress, file=sys.stderr,
+              dynamic_ncols=True) as bar:
+        for label, ds in datasets:
+            for idx in indices[label]:
+                item = ds[idx]
+                name = str(item.get("name", idx))
+                md = int(max_disp if max_disp is not None else item["max_disp"])
+                left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
+                outs: dict[str, StereoOutput | None] = {}
+                for m in methods:
+                    bar.set_postfix_str(f"{label}/{name} {m}", refresh=False)
+                    if m not in warmed:
+                        _warm_up(fns[m], item, md)
+                        warmed.add(m)
+                    res, out = _run_one(fns[m], left, right, md, item, fill)
+                    result.pairs.append(PairResult(m, label, name, *res))
+                    outs[m] = out
+                    bar.update(1)
+                if plots is not None:
+                    _plot_pair(plots / _safe(label) / f"{_safe(name)}.png", item, outs, md)
+    result.rows = aggregate(result.pairs, methods, [label for label, _ in datasets])
+    if plots is not None:
+        plot_bad2(result.rows, plots / "bad2.png")
+    return result
+
+
+def _run_one(fn: Callable, left: torch.Tensor, right: torch.Tensor, max_disp: int, item: dict,
+             fill: bool) -> tuple[tuple, StereoOutput | None]:
+    """Run and measure one matcher call; failures come back as an error message, never an exception."""
+    try:
+        with torch.no_grad(), PeakMemory() as mem, Stopwatch() as clock:
+            out = fn(left, right, max_disp)
+        if fill:
+            out = apply_fill(out)
+        return (pair_metrics(out, item), clock.seconds, mem.peak_mib, None), out
+    except Exception as e:  # noqa: BLE001 - one failing method must not stop the comparison
+        msg = " ".join(str(e).split()) or "no message"
+        return (None, math.nan, math.nan, f"{type(e).__name__}: {msg}"), None
+
+
+def _mean(values: list[float]) -> float | None:
+    values = [v for v in values if v is not None and not math.isnan(v)]
+    return float(np.mean(values)) if values else None
+
+
+def aggregate(pairs: Sequence[PairResult], methods: Sequence[str], datasets: Sequence[str]) -> list[dict]:
+    """One row per (method, dataset): per-pair means of every metric, mean seconds, max peak MiB."""
+    rows = []
+    for d in datasets:
+        for m in methods:
+            sel = [p for p in pairs if p.method == m and p.dataset == d]
+            ok = [p for p in sel if p.metrics is not None]
+            keys = sorted({k for p in ok for k in p.metrics}, key=_key_order)
+            row: dict = {"method": m, "dataset": d, "pairs": len(ok)}
+            for k in keys:
+                row[k] = _mean([p.metrics.get(k) for p in ok])
+            for k in METRICS:
+                row.setdefault(k, None)
+            row["seconds"] = _mean([p.seconds for p in ok])
+            peaks = [p.peak_mib for p in ok]
+            row["peak_mib"] = float(max(peaks)) if peaks else None
+            row["failed"] = len(sel) - len(ok)
+            errors = [p.error for p in sel if p.error]
+            if errors:
+                row["error"] = errors[0]
+            rows.append(row)
+    return rows
+
+
+def _key_order(k: str) -> tuple[int, str]:
+    base = k.split("_")[0]
+    return (METRICS.index(base) if base in METRICS else len(METRICS), k)
+
+
+# ---------------------------------------------------------------------------------------------- output
+
+COLUMNS = (("EPE", "epe", "{:.2f}"), ("bad-1", "bad1", "{:.1f}"), ("bad-2", "bad2", "{:.1f}"),
+           ("bad-4", "bad4", "{:.1f}"), ("D1", "d1", "{:.1f}"), ("dens", "density", "{:.1f}"),
+           ("EPE-noc", "epe_noc", "{:.2f}"), ("bad-2-noc", "bad2_noc", "{:.1f}"), ("SEE", "see", "{:.2f}"),
+           ("s/pair", "seconds", "{:.3f}"), ("MiB", "peak_mib", "{:.1f}"))
+
+
+def format_table(rows: Sequence[dict]) -> str:
+    """Plain-text table, one line per method and dataset; columns that no row has are dropped."""
+    cols = [c for c in COLUMNS if any(r.get(c[1]) is not None for r in rows)]
+    header = ["method", "dataset", "pairs"] + [c[0] for c in cols]
+    lines = []
+    for r in rows:
+        mark = "!" if r.get("failed") else ""
+        cells = [r["method"] + mark, r["dataset"], str(r["pairs"])]
+        cells += ["-" if r.get(k) is None else fmt.format(r[k]) for _, k, fmt in cols]
+        lines.append(cells)
+    widths = [max(len(x) for x in col) for col in zip(header, *lines)]
+    out = [" ".join(h.ljust(w) if i < 2 else h.rjust(w) for i, (h, w) in enumerate(zip(header, widths)))]
+    out.append(" ".join("-" * w for w in widths))
+    for cells in lines:
+        out.append(" ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))))
+    notes = [f"! {r['method']} on {r['dataset']}: failed on {r['failed']} pair(s): {r.get('error', '')}"
+             for r in rows if r.get("failed")]
+    legend = ("EPE in px; bad-t = % of GT pixels with error > t px; D1 = KITTI (>3 px and >5 %); dens = % valid "
+              "predictions (invalid ones count as errors); -noc = non-occluded pixels only; per-pair means.")
+    return "\n".join(out + notes + [legend])
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip("_") or "pair"
+
+
+def _plot_pair(path: Path, item: dict, outs: dict[str, StereoOutput | None], max_disp: int) -> None:
+    """Panel: left | GT | each method's disparity (top row), blank | blank | each method's error map (bottom)."""
+    from stereonet import viz
+
+    left = _batch(item["left"])[0]
+    gt = _batch(item["disparity"])[0, 0].cpu().numpy()
+    gt_valid = _batch(item["valid"])[0, 0].cpu().numpy().astype(bool)
+    img = (left.clamp(0, 1) * 255 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+    img = np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
+    blank = np.full_like(img, 255)
+    top, bottom, titles_top, titles_bottom = [img, viz.colorize_disparity(gt, max_disp, gt_valid)], \
+        [blank, blank], ["left", "ground truth"], ["", ""]
+    for m, out in outs.items():
+        if out is None:
+            top.append(blank)
+            bottom.append(blank)
+            titles_top.append(f"{m} (failed)")
+            titles_bottom.append("")
+            continue
+        d = out.disparity[0, 0].cpu().numpy()
+        v = out.valid[0, 0].cpu().numpy()
+        top.append(viz.colorize_disparity(d, max_disp, v))
+        bottom.append(viz.error_map(np.where(v, d, 0.0), gt, gt_valid))
+        titles_top.append(m)
+        titles_bottom.append(f"{m} error")
+    a = viz.panel(top, titles_top)
+    b = viz.panel(bottom, titles_bottom)
+    width = max(a.shape[1], b.shape[1])
+    pad = lambda x: np.pad(x, ((0, 0), (0, width - x.shape[1]), (0, 0)), constant_values=255)
+    viz.save_png(path, np.concatenate([pad(a), pad(b)], axis=0))
+
+
+def plot_bad2(rows: Sequence[dict], path: Path, key: str = "bad2") -> None:
+    """Grouped bar chart of ``key`` (bad-2 by default) per method, one group per dataset."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stereonet.io.atomic import atomic_path
+
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    datasets = list(dict.fromkeys(r["dataset"] for r in rows))
+    value = {(r["method"], r["dataset"]): r.get(key) for r in rows}
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.5 * len(methods) * max(1, len(datasets)) + 2), 4))
+    width = 0.8 / max(1, len(datasets))
+    x = np.arange(len(methods))
+    for j, d in enumerate(datasets):
+        ys = [value.get((m, d)) for m in methods]
+        ax.bar(x + (j - (len(datasets) - 1) / 2) * width, [np.nan if y is None else y for y in ys], width, label=d)
+    ax.set_xticks(x)
+    ax.set_xticklabels(methods, rotation=45, ha="right")
+    ax.set_ylabel(f"{key} (% of GT pixels, lower is better)")
+    ax.set_title(f"{key} per method")
+    ax.legend(fontsize="small")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+
+
+def write_json(path: Path, rows: Sequence[dict]) -> None:
+    from stereonet.io.atomic import atomic_write_text
+
+    atomic_write_text(path, json.dumps(list(rows), indent=2) + "\n")
+
+
+# ------------------------------------------------------------------------------------------------ main
+
+def build_parser() -> OneLineParser:
+    p = OneLineParser(prog=PROG, description="Evaluate stereo methods on datasets with ground truth: one table.")
+    p.add_argument("--methods", required=True, help="comma-separated registered names, or 'all'")
+    p.add_argument("--data", required=True,
+                   help="SPEC[,SPEC...]: synthetic[:N], middlebury2001:DIR, middlebury2003:DIR, middlebury2014:DIR, "
+                        "kitti2012:DIR, kitti2015:DIR, folder:DIR, or real (every dataset in ../shared/data)")
+    p.add_argument("--max-disp", type=int, default=None, help="disparity range (default: each pair's own)")
+    p.add_argument("--json", type=Path, default=None, help="write the rows as a JSON list to this file")
+    p.add_argument("--plots", type=Path, default=None, help="write per-pair panels and a bad-2 bar chart here")
+    p.add_argument("--fill", action="store_true", help="fill every method's invalid pixels the same way")
+    p.add_argument("--shard", default=None, help="evaluate only pairs with index %% n == i (i/n)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        methods = parse_methods(args.methods)
+        specs = expand_data_specs(args.data)
+        shard = parse_shard(args.shard)
+        if args.max_disp is not None and args.max_disp <= 0:
+            raise ValueError(f"--max-disp: expected a positive integer, got {args.max_disp}")
+        if args.fill:
+            import stereonet.optimize.fill  # noqa: F401 - fail now, not after the first pair
+        ev = run_evaluation(methods, specs, args.max_disp, args.fill, shard, args.plots, not args.no_progress)
+    except USER_ERRORS as e:
+        return fail(PROG, e)
+    except ImportError as e:
+        return fail(PROG, f"{e} (this part of stereonet is not installed)")
+    except KeyboardInterrupt:
+        return fail(PROG, "interrupted", 130)
+    print(format_table(ev.rows))
+    if args.json is not None:
+        write_json(args.json, ev.rows)
+    return 1 if any(r["failed"] for r in ev.rows) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
