@@ -65,6 +65,16 @@ def read_calibration(path: str | os.PathLike, kitti_cameras: tuple[int, int] = (
 
 
 # ------------------------------------------------------------------------------------------ Middlebury
+def _key_values(path: Path, sep: str) -> dict[str, str]:
+    """``key<sep>value`` lines of a text file as a dict of stripped strings (other lines ignored)."""
+    values: dict[str, str] = {}
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        if sep in line:
+            k, v = line.split(sep, 1)
+            values[k.strip()] = v.strip()
+    return values
+
+
 def _parse_matrix(text: str, path: Path, key: str) -> np.ndarray:
     rows = [r.split() for r in text.strip().strip("[]").split(";")]
     try:
@@ -79,11 +89,7 @@ def _parse_matrix(text: str, path: Path, key: str) -> np.ndarray:
 def read_middlebury_calibration(path: str | os.PathLike) -> Calibration:
     """Read a Middlebury 2014 ``calib.txt`` (``key=value`` lines; ``baseline`` in mm)."""
     p = existing_file(path)
-    values: dict[str, str] = {}
-    for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
-        if "=" in line:
-            k, v = line.split("=", 1)
-            values[k.strip()] = v.strip()
+    values = _key_values(p, "=")
 
     def get(key: str) -> str:
         if key not in values:
@@ -119,11 +125,7 @@ def read_kitti_calibration(path: str | os.PathLike, cameras: tuple[int, int] = (
     KITTI 2012 colored_0/colored_1), (0, 1) the grey pair. Translations are in metres.
     """
     p = existing_file(path)
-    values: dict[str, str] = {}
-    for line in p.read_text(encoding="utf-8", errors="replace").splitlines():
-        if ":" in line:
-            k, v = line.split(":", 1)
-            values[k.strip()] = v.strip()
+    values = _key_values(p, ":")
     projections = []
     for cam in cameras:
         key = next((k for k in (f"P_rect_{cam:02d}", f"P{cam}") if k in values), None)
