@@ -1,0 +1,90 @@
+"""Box filters in O(1) per pixel (separable integral images) and a min filter for shiftable windows.
+
+Border rule (used by every windowed cost): a window that sticks out of the image is truncated to its
+in-image part and :func:`box_mean` divides by the number of in-image pixels, so border pixels are averaged
+over fewer samples instead of over invented (padded) values.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from stereonet.checks import check_shape, check_window
+
+
+def _box_sum_1d(x: torch.Tensor, radius: int, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sum over ``[i - radius, i + radius] ∩ [0, n)`` along ``dim`` by one cumulative sum.
+
+    Returns the sums (same shape as ``x``) and the per-index sample counts, shape ``(n,)``.
+    """
+    n = x.shape[dim]
+    cs = torch.cumsum(x, dim=dim)
+    zero = torch.zeros_like(cs.narrow(dim, 0, 1))
+    cs = torch.cat([zero, cs], dim=dim)  # S[0] = 0, S[i + 1] = sum_{k <= i} x[k]
+    i = torch.arange(n, device=x.device)
+    hi = (i + radius + 1).clamp(max=n)
+    lo = (i - radius).clamp(min=0)
+    out = cs.index_select(dim, hi) - cs.index_select(dim, lo)
+    return out, (hi - lo).to(x.dtype)
+
+
+def box_sum(x: torch.Tensor, window: int) -> torch.Tensor:
+    """Sum over a ``window x window`` square around each pixel (truncated at the image border).
+
+    Args:
+        x: :math:`(B, C, H, W)` floating tensor (C may be a disparity axis).
+        window: odd window size.
+
+    Returns:
+        :math:`(B, C, H, W)`; O(1) operations per pixel whatever the window size.
+    """
+    check_shape(x, ["B", "C", "H", "W"], "x")
+    check_window(window)
+    if window == 1:
+        return x
+    r = window // 2
+    out, _ = _box_sum_1d(x, r, dim=3)
+    out, _ = _box_sum_1d(out, r, dim=2)
+    return out
+
+
+def box_mean(x: torch.Tensor, window: int) -> torch.Tensor:
+    """Mean over the in-image part of a ``window x window`` square around each pixel.
+
+    Args:
+        x: :math:`(B, C, H, W)` floating tensor.
+        window: odd window size.
+
+    Returns:
+        :math:`(B, C, H, W)`; O(1) per pixel (integral image along W then H).
+    """
+    check_shape(x, ["B", "C", "H", "W"], "x")
+    check_window(window)
+    if window == 1:
+        return x
+    r = window // 2
+    out, count_w = _box_sum_1d(x, r, dim=3)
+    out, count_h = _box_sum_1d(out, r, dim=2)
+    return out / (count_h[:, None] * count_w[None, :])  # HxW counts broadcast over B, C
+
+
+def min_filter(x: torch.Tensor, window: int) -> torch.Tensor:
+    """Minimum over a ``window x window`` square around each pixel (border: in-image part only).
+
+    Applied to a box-aggregated cost this gives the *shiftable window* cost: the best of all
+    ``window x window`` windows that contain the pixel.
+
+    Args:
+        x: :math:`(B, C, H, W)`.
+        window: odd window size.
+    """
+    check_shape(x, ["B", "C", "H", "W"], "x")
+    check_window(window)
+    if window == 1:
+        return x
+    r = window // 2
+    # separable: max_pool of -x with -inf padding (max_pool2d pads with -inf itself)
+    out = -F.max_pool2d(-x, kernel_size=(1, window), stride=1, padding=(0, r))
+    out = -F.max_pool2d(-out, kernel_size=(window, 1), stride=1, padding=(r, 0))
+    return out

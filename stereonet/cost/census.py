@@ -1,0 +1,74 @@
+"""Census transform and Hamming distance on bit-packed codes (Zabih & Woodfill 1994).
+
+The census code of a pixel has one bit per neighbour of its ``window x window`` square (centre excluded):
+bit = 1 where the neighbour is darker than the centre (``I(q) < I(p)``). Neighbours outside the image are
+replicated from the border. Codes are packed 62 bits per int64 word (the sign bit stays 0, so arithmetic
+shifts are safe), and the Hamming distance is a branch-free SWAR popcount of ``code_l XOR code_r``.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from stereonet.checks import check_image, check_window
+
+BITS_PER_WORD = 62
+
+_M1 = 0x5555555555555555 & 0x7FFFFFFFFFFFFFFF
+_M2 = 0x3333333333333333
+_M4 = 0x0F0F0F0F0F0F0F0F
+
+
+def to_grey(img: torch.Tensor) -> torch.Tensor:
+    """(B, C, H, W) -> (B, 1, H, W): ITU-R BT.601 luma for C = 3, identity for C = 1."""
+    if img.shape[1] == 1:
+        return img
+    w = img.new_tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)
+    return (img * w).sum(1, keepdim=True)
+
+
+def census_transform(img: torch.Tensor, window: int = 5) -> torch.Tensor:
+    """Bit-packed census codes.
+
+    Args:
+        img: :math:`(B, C, H, W)` image (colour is converted to grey first).
+        window: odd census window size (>= 3); ``window**2 - 1`` bits per pixel.
+
+    Returns:
+        :math:`(B, K, H, W)` int64 with ``K = ceil((window**2 - 1) / 62)`` words per pixel.
+    """
+    check_image(img, "img")
+    check_window(window, "census_window")
+    if window < 3:
+        raise ValueError(f"census_window: expected an odd integer >= 3, got {window}")
+    grey = to_grey(img)
+    r = window // 2
+    padded = F.pad(grey, (r, r, r, r), mode="replicate")
+    h, w = grey.shape[-2:]
+    offsets = [(dy, dx) for dy in range(window) for dx in range(window) if (dy, dx) != (r, r)]
+    n_words = (len(offsets) + BITS_PER_WORD - 1) // BITS_PER_WORD
+    words = []
+    for k in range(n_words):
+        word = torch.zeros(grey.shape, dtype=torch.int64, device=img.device)
+        for bit, (dy, dx) in enumerate(offsets[k * BITS_PER_WORD:(k + 1) * BITS_PER_WORD]):
+            darker = padded[:, :, dy:dy + h, dx:dx + w] < grey
+            word |= darker.to(torch.int64) << bit
+        words.append(word)
+    return torch.cat(words, dim=1)  # BxKxHxW
+
+
+def popcount(x: torch.Tensor) -> torch.Tensor:
+    """Number of set bits of non-negative int64 values (SWAR, no loops over bits)."""
+    x = x - ((x >> 1) & _M1)
+    x = (x & _M2) + ((x >> 2) & _M2)
+    x = (x + (x >> 4)) & _M4
+    x = x + (x >> 8)
+    x = x + (x >> 16)
+    x = x + (x >> 32)
+    return x & 0x7F
+
+
+def hamming(code_a: torch.Tensor, code_b: torch.Tensor) -> torch.Tensor:
+    """Hamming distance of packed codes :math:`(B, K, H, W)` -> :math:`(B, 1, H, W)` int64."""
+    return popcount(code_a ^ code_b).sum(1, keepdim=True)

@@ -1,0 +1,334 @@
+"""Matching-cost volumes ``(B, D, H, W)``, ``D = max_disp + 1``, lower = better.
+
+``cost[b, d, y, x]`` compares the left pixel ``(y, x)`` with the right pixel ``(y, x - d)``. Every windowed
+cost is a pixelwise cost aggregated by a box filter (:func:`stereonet.cost.box.box_mean`, O(1) per pixel and
+disparity, any odd window), so all window costs are *means* over the window (independent of its size).
+
+Costs (``cost=`` of :func:`build_cost_volume`), images in [0, 1], colour channels averaged unless noted:
+
+- ``"ad"``: pixelwise absolute difference (``window`` is ignored).
+- ``"sad"``: mean absolute difference over the window.
+- ``"ssd"``: mean squared difference over the window.
+- ``"zsad"``: SAD of zero-mean images ``I - box_mean(I)`` (each pixel minus the mean of the window centred
+  on it). This is the O(1) form used in practice (exact ZSAD subtracts the mean of the window centred on the
+  reference pixel from all its members, which is not a box filter); it removes additive bias just the same.
+- ``"lssad"``: SAD of locally scaled images ``I / (box_mean(I) + 1/255)``: removes multiplicative gain, the
+  same O(1) form as ``zsad``.
+- ``"ncc"``: ``1 - NCC`` on grey images, exact for windows inside both images. Where either window has
+  (near-)zero variance (``var < 1e-6``, e.g. a constant image) the NCC is *defined* as 0, i.e. cost 1:
+  "no information", never NaN. Costs lie in [0, 2].
+- ``"census"``: Hamming distance of ``census_window`` census codes of grey images (bits, 0 .. cw**2 - 1),
+  box-averaged over ``window`` (``window=1``: pixelwise Hamming).
+- ``"census_ad"``: AD-Census (Mei et al. 2011): ``2 - exp(-census/lambda_census) - exp(-ad/lambda_ad)``,
+  in [0, 2), box-averaged over ``window``.
+
+Right positions outside the image (``x - d < 0``) are compared against the replicated border column while
+aggregating, and their final cost is set to ``max(valid costs of the volume) + 1`` — a large *finite* cost,
+so WTA never picks them unless nothing else exists and SGM/DP recurrences stay finite.
+
+Memory: the output volume is allocated once; the intermediate per-disparity work is done in chunks of
+disparities sized to ``memory_budget`` bytes (default 512 MiB), so e.g. KITTI (1242x375, 192 disparities)
+builds in bounded memory.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import torch
+
+from stereonet.checks import StereoInputError, check_image, check_max_disp, check_stereo_inputs, check_window
+from stereonet.cost.box import box_mean, min_filter
+from stereonet.cost.census import census_transform, popcount, to_grey
+
+DEFAULT_MEMORY_BUDGET = 512 * 2**20
+NCC_MIN_VARIANCE = 1e-6
+LSSAD_EPS = 1.0 / 255.0
+COSTS = ("ad", "sad", "ssd", "zsad", "lssad", "ncc", "census", "census_ad")
+
+PixelCost = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+def _pad_left_replicate(x: torch.Tensor, n: int) -> torch.Tensor:
+    """Prepend ``n`` copies of the first column (works for integer tensors too)."""
+    if n == 0:
+        return x
+    return torch.cat([x[..., :1].expand(*x.shape[:-1], n), x], dim=-1)
+
+
+def shifted_stack(right: torch.Tensor, d0: int, d1: int) -> torch.Tensor:
+    """``out[:, :, i, y, x] = right[:, :, y, max(x - (d0 + i), 0)]`` for ``d0 <= d0 + i < d1``.
+
+    Args:
+        right: :math:`(B, C, H, W)` (any dtype).
+    Returns:
+        :math:`(B, C, d1 - d0, H, W)` (a copy of the chunk).
+    """
+    w = right.shape[-1]
+    padded = _pad_left_replicate(right, d1 - 1)  # BxCxHx(W+d1-1); padded[..., k + x] = right[x + k - d1 + 1]
+    # window k covers padded[..., k:k+W] = right shifted by d = d1 - 1 - k; keep d in [d0, d1)
+    windows = padded.unfold(3, w, 1)[:, :, :, : d1 - d0]  # BxCxHx(d1-d0)xW, k = 0 <-> d = d1 - 1
+    return windows.flip(3).permute(0, 1, 3, 2, 4)  # BxCx(d1-d0)xHxW, i = 0 <-> d = d0
+
+
+def _invalid_mask(d0: int, d1: int, width: int, device: torch.device) -> torch.Tensor:
+    """(d1 - d0, 1, W) bool: True where ``x - d < 0`` (right pixel outside the image)."""
+    d = torch.arange(d0, d1, device=device).view(-1, 1, 1)
+    x = torch.arange(width, device=device).view(1, 1, -1)
+    return x < d
+
+
+def sweep_cost_volume(left_feat: torch.Tensor, right_feat: torch.Tensor, max_disp: int,
+                      pixel_cost: PixelCost,
+                      aggregate: Callable[[torch.Tensor], torch.Tensor] | None = None,
+                      finalize: Callable[[torch.Tensor, int, int], torch.Tensor] | None = None,
+                      memory_budget: int = DEFAULT_MEMORY_BUDGET, invalid: str = "max+1",
+                      out_dtype: torch.dtype | None = None) -> torch.Tensor:
+    """Generic disparity sweep: pixelwise cost, aggregation and finalisation per chunk of disparities.
+
+    Args:
+        left_feat, right_feat: :math:`(B, C, H, W)` per-pixel features (images, census codes ...).
+        max_disp: largest disparity; ``D = max_disp + 1``.
+        pixel_cost: ``(left (B,C,1,H,W), right_shifted (B,C,Dc,H,W)) -> (B, Dc, H, W)`` float.
+        aggregate: optional ``(B, Dc, H, W) -> (B, Dc, H, W)`` (e.g. a box filter).
+        finalize: optional ``(aggregated chunk, d0, d1) -> chunk`` (e.g. NCC normalisation).
+        memory_budget: bytes for the intermediates of one chunk.
+        invalid: ``"max+1"`` (costs: largest valid cost + 1) or ``"zero"`` (similarities).
+        out_dtype: output dtype (default: the left feature dtype if floating, else float32).
+
+    Returns:
+        :math:`(B, D, H, W)`.
+    """
+    b, c, h, w = left_feat.shape
+    n_disp = max_disp + 1
+    dtype = out_dtype or (left_feat.dtype if left_feat.is_floating_point() else torch.float32)
+    out = torch.empty((b, n_disp, h, w), dtype=dtype, device=left_feat.device)
+    itemsize = max(left_feat.element_size(), torch.finfo(dtype).bits // 8)
+    per_disp = b * max(c, 1) * h * w * itemsize * 6  # shifted copy, difference, aggregation temporaries
+    chunk = max(1, min(n_disp, memory_budget // max(per_disp, 1)))
+    left5 = left_feat.unsqueeze(2)  # BxCx1xHxW
+    running_max = None
+    for d0 in range(0, n_disp, chunk):
+        d1 = min(n_disp, d0 + chunk)
+        vol = pixel_cost(left5, shifted_stack(right_feat, d0, d1))  # BxDcxHxW
+        if aggregate is not None:
+            vol = aggregate(vol)
+        if finalize is not None:
+            vol = finalize(vol, d0, d1)
+        if invalid == "max+1":
+            bad = _invalid_mask(d0, d1, w, vol.device)
+            m = vol.detach().masked_fill(bad, -math.inf).amax()
+            running_max = m if running_max is None else torch.maximum(running_max, m)
+        out[:, d0:d1] = vol
+    bad = _invalid_mask(0, n_disp, w, out.device)  # Dx1xW
+    if invalid == "max+1":
+        fill = float(running_max) + 1.0 if running_max is not None and math.isfinite(float(running_max)) else 1.0
+    else:
+        fill = 0.0
+    if out.requires_grad:
+        return out.masked_fill(bad, fill)
+    return out.masked_fill_(bad, fill)
+
+
+def _box(window: int) -> Callable[[torch.Tensor], torch.Tensor] | None:
+    return None if window == 1 else (lambda v: box_mean(v, window))
+
+
+def _abs_diff(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
+    return (lf - rs).abs().mean(1)
+
+
+def _sq_diff(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
+    return (lf - rs).square().mean(1)
+
+
+def _prepare(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int) -> tuple:
+    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    return left, right, max_disp, check_window(window)
+
+
+def ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, *,
+                   memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """Pixelwise absolute difference (mean over channels). ``left``/``right`` (B, C, H, W) -> (B, D, H, W)."""
+    left, right, max_disp, _ = _prepare(left, right, max_disp, 1)
+    return sweep_cost_volume(left, right, max_disp, _abs_diff, memory_budget=memory_budget)
+
+
+def sad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
+                    memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """Window mean of absolute differences. (B, C, H, W) pair -> (B, D, H, W)."""
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    return sweep_cost_volume(left, right, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
+
+
+def ssd_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
+                    memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """Window mean of squared differences. (B, C, H, W) pair -> (B, D, H, W)."""
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    return sweep_cost_volume(left, right, max_disp, _sq_diff, _box(window), memory_budget=memory_budget)
+
+
+def zsad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
+                     memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """SAD of zero-mean images ``I - box_mean(I, window)`` (see module doc). -> (B, D, H, W)."""
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    lz, rz = left - box_mean(left, window), right - box_mean(right, window)
+    return sweep_cost_volume(lz, rz, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
+
+
+def lssad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
+                      memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """SAD of locally scaled images ``I / (box_mean(I, window) + 1/255)`` (see module doc). -> (B, D, H, W)."""
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    ls = left / (box_mean(left, window) + LSSAD_EPS)
+    rs = right / (box_mean(right, window) + LSSAD_EPS)
+    return sweep_cost_volume(ls, rs, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
+
+
+def ncc_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
+                    memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """``1 - NCC`` over the window on grey images; zero variance -> NCC := 0 (cost 1). -> (B, D, H, W) in [0, 2]."""
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if window < 3:
+        raise StereoInputError(f"window: NCC needs a window of at least 3, got {window}")
+    gl, gr = to_grey(left), to_grey(right)
+    mu_l, mu_r = box_mean(gl, window), box_mean(gr, window)
+    var_l = (box_mean(gl * gl, window) - mu_l * mu_l).clamp(min=0)
+    var_r = (box_mean(gr * gr, window) - mu_r * mu_r).clamp(min=0)
+
+    def finalize(e_lr: torch.Tensor, d0: int, d1: int) -> torch.Tensor:
+        mr = shifted_stack(mu_r, d0, d1)[:, 0]  # BxDcxHxW
+        vr = shifted_stack(var_r, d0, d1)[:, 0]
+        cov = e_lr - mu_l * mr
+        ok = (var_l > NCC_MIN_VARIANCE) & (vr > NCC_MIN_VARIANCE)
+        denom = torch.sqrt(torch.where(ok, var_l * vr, torch.ones_like(vr)))
+        ncc = torch.where(ok, cov / denom, torch.zeros_like(cov)).clamp(-1.0, 1.0)
+        return 1.0 - ncc
+
+    def product(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
+        return (lf * rs)[:, 0]
+
+    return sweep_cost_volume(gl, gr, max_disp, product, _box(window), finalize, memory_budget=memory_budget)
+
+
+def _hamming_stack(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
+    return popcount(lf ^ rs).sum(1)
+
+
+def census_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 1, *,
+                       census_window: int = 5, memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """Hamming distance of census codes, box-averaged over ``window``. -> (B, D, H, W) in bits."""
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    cl, cr = census_transform(left, census_window), census_transform(right, census_window)
+
+    def pixel(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
+        return _hamming_stack(lf, rs).to(left.dtype)
+
+    return sweep_cost_volume(cl, cr, max_disp, pixel, _box(window), memory_budget=memory_budget,
+                             out_dtype=left.dtype)
+
+
+def census_ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 1, *,
+                          census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
+                          memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """AD-Census ``2 - exp(-hamming/lambda_census) - exp(-ad/lambda_ad)``. -> (B, D, H, W) in [0, 2)."""
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    cl, cr = census_transform(left, census_window), census_transform(right, census_window)
+
+    def pixel(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
+        return _hamming_stack(lf, rs).to(left.dtype)
+
+    census = sweep_cost_volume(cl, cr, max_disp, pixel, None, memory_budget=memory_budget, out_dtype=left.dtype)
+    ad = sweep_cost_volume(left, right, max_disp, _abs_diff, None, memory_budget=memory_budget)
+    vol = 2.0 - torch.exp(-census / lambda_census) - torch.exp(-ad / lambda_ad)
+    del census, ad
+    return box_mean(vol, window) if window > 1 else vol
+
+
+def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
+                         base: str = "sad", mode: str = "multiwindow",
+                         memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """Adaptive-window aggregation of a pixelwise ``base`` cost (``"sad"`` or ``"ssd"``).
+
+    ``mode="multiwindow"`` (Hirschmüller et al. 2002, five windows): the mean over the centre window plus
+    the two best of the four ``window``-sized windows centred on the corners of the centre window, divided
+    by 3. ``mode="shiftable"``: the best of all ``window``-sized windows that contain the pixel (min filter
+    of the box mean). Both adapt to depth edges (a window can avoid the other side of the edge).
+
+    Returns:
+        :math:`(B, D, H, W)` mean costs.
+    """
+    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    pixel = {"sad": _abs_diff, "ssd": _sq_diff}.get(base)
+    if pixel is None:
+        raise StereoInputError(f"base: expected 'sad' or 'ssd', got {base!r}")
+    if mode == "shiftable":
+        def aggregate(v: torch.Tensor) -> torch.Tensor:
+            return min_filter(box_mean(v, window), window)
+    elif mode == "multiwindow":
+        r = window // 2
+
+        def aggregate(v: torch.Tensor) -> torch.Tensor:
+            agg = box_mean(v, window)
+            padded = torch.nn.functional.pad(agg, (r, r, r, r), mode="replicate")
+            h, w = agg.shape[-2:]
+            corners = torch.stack([padded[..., oy:oy + h, ox:ox + w] for oy in (0, 2 * r) for ox in (0, 2 * r)])
+            best2 = corners.topk(2, dim=0, largest=False).values.sum(0)
+            return (agg + best2) / 3.0
+    else:
+        raise StereoInputError(f"mode: expected 'multiwindow' or 'shiftable', got {mode!r}")
+    # the multiwindow temporaries are ~6x a chunk: shrink the budget accordingly
+    return sweep_cost_volume(left, right, max_disp, pixel, aggregate, memory_budget=memory_budget // 3)
+
+
+def build_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = "sad",
+                      window: int = 5, **options) -> torch.Tensor:
+    """Cost volume of ``cost`` (one of :data:`COSTS` or ``"adaptive"``), see the module doc.
+
+    Args:
+        left, right: :math:`(B, C, H, W)` float images in [0, 1], same shape, C = 1 or 3.
+        max_disp: ``0 < max_disp < W``; the volume has ``D = max_disp + 1`` disparities 0..max_disp.
+        cost: cost name.
+        window: odd aggregation window (ignored by ``"ad"``).
+        **options: per-cost keywords (``census_window``, ``memory_budget``, ``mode``/``base`` for adaptive ...).
+
+    Returns:
+        :math:`(B, D, H, W)` costs, lower = better, same dtype/device as ``left``.
+    """
+    builders = {"sad": sad_cost_volume, "ssd": ssd_cost_volume, "zsad": zsad_cost_volume,
+                "lssad": lssad_cost_volume, "ncc": ncc_cost_volume, "census": census_cost_volume,
+                "census_ad": census_ad_cost_volume, "adaptive": adaptive_cost_volume}
+    if cost == "ad":
+        return ad_cost_volume(left, right, max_disp, **options)
+    if cost not in builders:
+        raise StereoInputError(f"cost: expected one of {', '.join(COSTS + ('adaptive',))}, got {cost!r}")
+    return builders[cost](left, right, max_disp, window, **options)
+
+
+def correlation_similarity(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int, *,
+                           memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+    """Correlation *similarity* volume (higher = better) for learned features.
+
+    ``sim[b, d, y, x] = mean_c feat_left[b, c, y, x] * feat_right[b, c, y, x - d]`` (the channel-normalised
+    dot product of DispNet-C / GwcNet); 0 where ``x - d < 0``. Differentiable.
+
+    Args:
+        feat_left, feat_right: :math:`(B, C, H, W)` float features, any C.
+        max_disp: ``0 < max_disp < W``.
+
+    Returns:
+        :math:`(B, D, H, W)`, ``D = max_disp + 1``.
+    """
+    if not isinstance(feat_left, torch.Tensor) or not isinstance(feat_right, torch.Tensor):
+        raise TypeError("feat_left/feat_right: expected torch.Tensor features of shape (B, C, H, W)")
+    check_image(feat_left, "feat_left", channels=(feat_left.shape[1],) if feat_left.dim() == 4 else (1,))
+    check_image(feat_right, "feat_right", channels=(feat_left.shape[1],))
+    if feat_left.shape != feat_right.shape:
+        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
+    max_disp = check_max_disp(max_disp, feat_left.shape[-1])
+
+    def dot(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
+        return (lf * rs).mean(1)
+
+    return sweep_cost_volume(feat_left, feat_right, max_disp, dot, memory_budget=memory_budget, invalid="zero")

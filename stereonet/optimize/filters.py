@@ -1,0 +1,123 @@
+"""Post-filters for disparity maps: median filter and speckle (small connected component) removal."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from stereonet.checks import StereoInputError, check_shape, check_window
+
+
+def median_filter(disp: torch.Tensor, size: int = 3, valid: torch.Tensor | None = None) -> torch.Tensor:
+    """Median over a ``size x size`` window (border replicated).
+
+    With ``valid`` given, only valid neighbours vote (a pixel without valid neighbours keeps its value);
+    the output is defined everywhere, the mask is for the caller to keep.
+
+    Args:
+        disp: :math:`(B, 1, H, W)`.
+        size: odd window size.
+        valid: optional bool :math:`(B, 1, H, W)`.
+
+    Returns:
+        :math:`(B, 1, H, W)`.
+    """
+    dims = check_shape(disp, ["B", "1", "H", "W"], "disp")
+    check_window(size, "size")
+    if size == 1:
+        return disp
+    r = size // 2
+    h, w = dims["H"], dims["W"]
+    patches = F.unfold(F.pad(disp, (r, r, r, r), mode="replicate"), size)  # Bx(size*size)x(H*W)
+    if valid is None:
+        med = patches.median(dim=1).values
+        return med.view_as(disp)
+    check_shape(valid, [str(dims["B"]), "1", str(h), str(w)], "valid")
+    vpatch = F.unfold(F.pad(valid.to(disp.dtype), (r, r, r, r), mode="replicate"), size) > 0.5
+    n_valid = vpatch.sum(1, keepdim=True)
+    # invalid samples -> +inf, so the k-th smallest of the valid ones is the median (lower median)
+    vals = patches.masked_fill(~vpatch, float("inf")).sort(dim=1).values
+    k = ((n_valid - 1).clamp(min=0) // 2)
+    med = vals.gather(1, k).squeeze(1)
+    med = torch.where(n_valid.squeeze(1) > 0, med, disp.flatten(2).squeeze(1))
+    return med.view_as(disp)
+
+
+@numba.njit(cache=True)
+def _speckle_kernel(disp: np.ndarray, valid: np.ndarray, max_size: int, max_diff: float) -> np.ndarray:
+    """Flood fill of 4-connected regions of valid pixels whose neighbours differ by <= max_diff."""
+    h, w = disp.shape
+    label = np.zeros((h, w), dtype=np.int32)
+    out = valid.copy()
+    stack = np.empty(h * w, dtype=np.int64)
+    members = np.empty(h * w, dtype=np.int64)
+    current = 0
+    for y0 in range(h):
+        for x0 in range(w):
+            if not valid[y0, x0] or label[y0, x0] != 0:
+                continue
+            current += 1
+            label[y0, x0] = current
+            top = 0
+            stack[top] = y0 * w + x0
+            top += 1
+            count = 0
+            while top > 0:
+                top -= 1
+                p = stack[top]
+                members[count] = p
+                count += 1
+                y = p // w
+                x = p - y * w
+                dp = disp[y, x]
+                for k in range(4):
+                    ny, nx = y, x
+                    if k == 0:
+                        ny = y - 1
+                    elif k == 1:
+                        ny = y + 1
+                    elif k == 2:
+                        nx = x - 1
+                    else:
+                        nx = x + 1
+                    if ny < 0 or ny >= h or nx < 0 or nx >= w:
+                        continue
+                    if not valid[ny, nx] or label[ny, nx] != 0:
+                        continue
+                    if abs(disp[ny, nx] - dp) <= max_diff:
+                        label[ny, nx] = current
+                        stack[top] = ny * w + nx
+                        top += 1
+            if count < max_size:
+                for i in range(count):
+                    p = members[i]
+                    out[p // w, p - (p // w) * w] = False
+    return out
+
+
+def speckle_filter(disp: torch.Tensor, valid: torch.Tensor, max_size: int = 100,
+                   max_diff: float = 1.0) -> torch.Tensor:
+    """Invalidate speckles: 4-connected regions of valid pixels (neighbours differing by at most
+    ``max_diff``) with fewer than ``max_size`` pixels (OpenCV's ``filterSpeckles`` rule).
+
+    Args:
+        disp: :math:`(B, 1, H, W)`.
+        valid: bool :math:`(B, 1, H, W)`.
+        max_size: regions smaller than this are removed (0 disables).
+        max_diff: largest disparity step inside a region.
+
+    Returns:
+        bool :math:`(B, 1, H, W)` new validity mask (a subset of ``valid``).
+    """
+    dims = check_shape(disp, ["B", "1", "H", "W"], "disp")
+    check_shape(valid, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "valid")
+    if max_size < 0 or max_diff < 0:
+        raise StereoInputError(f"max_size/max_diff: expected non-negative values, got {max_size}, {max_diff}")
+    if max_size == 0:
+        return valid.clone()
+    d = disp.detach().to("cpu", torch.float32).numpy()
+    v = valid.detach().to("cpu").numpy().astype(np.bool_)
+    out = np.stack([_speckle_kernel(d[b, 0], v[b, 0], int(max_size), float(max_diff)) for b in range(d.shape[0])])
+    return torch.from_numpy(out[:, None]).to(valid.device)
