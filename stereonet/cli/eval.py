@@ -12,12 +12,14 @@ What the numbers mean:
 - Rates (bad-1/2/4, D1, density) are percentages 0-100. EPE is in pixels. Every metric is computed per pair
   over the pixels with ground truth and then averaged over the pairs (per-image averaging, as the
   Middlebury and KITTI tables do).
-- ``all`` metrics count pixels a method leaves invalid as errors (their end-point error is measured at
-  disparity 0), and ``density`` reports the valid share; ``*_noc`` metrics use only non-occluded pixels and
-  appear when the dataset has an occlusion mask. ``--fill`` applies one shared filling
+- bad-t and D1 count the pixels a method leaves invalid as errors; EPE and SEE have no value for them and
+  average the predicted pixels only, so read them with ``density`` (the share of GT pixels predicted), as
+  :mod:`stereonet.metrics` defines. ``*_noc`` (non-occluded) and ``*_occ`` metrics appear when the dataset
+  has an occlusion mask; the table shows EPE-noc and bad-2-noc, the JSON every key. ``--fill`` applies one shared filling
   (:func:`stereonet.optimize.fill.fill_occlusions`) to every method's invalid pixels for a dense comparison.
-- SEE (soft edge error, SMD-Nets) is computed for every method, from its disparity, on the ground truth's
-  depth-discontinuity pixels, so sharp and smooth edges can be compared across all methods alike.
+- SEE (soft edge error, SMD-Nets) is computed for every method from its disparity on the ground truth's
+  depth-discontinuity pixels (not only for methods with a mixture head), so edge sharpness compares across
+  all methods alike.
 - ``seconds`` is the wall time per pair of the matcher call alone (not loading, filling or metrics), after one
   untimed warm-up call per method on a small crop (JIT compilation and weight loading excluded).
 - ``peak_mib`` is the largest extra resident memory of one matcher call over the pairs (see
@@ -34,7 +36,6 @@ from __future__ import annotations
 import json
 import math
 import sys
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -113,15 +114,20 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 
 @dataclass
 class PairResult:
-    """One method on one pair: metrics (None when the method failed), time, memory, error."""
+    """One method on one pair: metrics (None when the method failed or was skipped), time, memory, error.
+
+    ``metrics`` are measured after ``--fill`` when it is on; ``raw_metrics`` always before it.
+    """
 
     method: str
     dataset: str
     pair: str
     metrics: dict[str, float] | None
+    raw_metrics: dict[str, float] | None
     seconds: float
     peak_mib: float
     error: str | None = None
+    skipped: bool = False
 
 
 @dataclass
@@ -147,46 +153,41 @@ def apply_fill(out: StereoOutput) -> StereoOutput:
 
 
 def pair_metrics(out: StereoOutput, item: dict) -> dict[str, float]:
-    """Metrics of one prediction against the item's ground truth (``evaluate`` + SEE when available)."""
+    """:func:`stereonet.metrics.evaluate` of one prediction against the item's ground truth (with SEE)."""
     from stereonet import metrics
 
     gt = _batch(item["disparity"]).to(out.disparity)
-    gt_valid = _batch(item["valid"]).bool()
     occ = item.get("occlusion")
-    occ = None if occ is None else _batch(occ).bool()
     with torch.no_grad():
-        res = {k: float(v) for k, v in metrics.evaluate(out.disparity, gt, gt_valid, pred_valid=out.valid,
-                                                        occlusion=occ).items()}
-        see = getattr(metrics, "soft_edge_error", None)
-        if see is not None:
-            try:
-                res["see"] = float(see(torch.where(out.valid, out.disparity, torch.zeros_like(out.disparity)),
-                                       gt, gt_valid))
-            except (ValueError, TypeError) as e:  # no discontinuity pixels in this GT, or another signature
-                warnings.warn(f"soft_edge_error skipped: {e}", stacklevel=2)
-    return res
+        res = metrics.evaluate(out.disparity, gt, _batch(item["valid"]).bool(), pred_valid=out.valid,
+                               occlusion=None if occ is None else _batch(occ).bool(), see=True)
+    return {k: float(v) for k, v in res.items()}
 
 
 def _warm_up(fn: Callable, item: dict, max_disp: int) -> None:
     """One untimed call on a small crop (JIT compilation, weight loading); errors surface in the real call."""
-    left, right = _batch(item["left"]), _batch(item["right"])
+    left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
     h, w = left.shape[-2:]
     md = min(max_disp, 16)
     hh, ww = min(h, 32), min(w, md + 48)
     try:
-        fn(left[..., :hh, :ww].contiguous(), right[..., :hh, :ww].contiguous(), md)
+        with torch.no_grad():
+            fn(left[..., :hh, :ww].contiguous(), right[..., :hh, :ww].contiguous(), md)
     except Exception:  # noqa: BLE001 - the timed call reports it
         pass
 
 
 def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int | None = None, fill: bool = False,
                    shard: tuple[int, int] = (0, 1), plots: Path | None = None, progress: bool = True,
-                   options: dict[str, dict] | None = None, load: Callable | None = None) -> Evaluation:
+                   options: dict[str, dict] | None = None, load: Callable | None = None,
+                   budget: float | None = None) -> Evaluation:
     """Run every method on every pair of every dataset spec; return per-pair results and table rows.
 
     ``load`` (default :func:`stereonet.data.load_dataset`) maps a spec to a dataset of item dicts; it is
     called for every spec before anything runs, so a bad spec fails fast. ``options[name]`` are keyword
-    options bound to matcher ``name``.
+    options bound to matcher ``name``. ``budget``: once a method has used this many seconds on one dataset,
+    its remaining pairs there are skipped (counted in the row's ``skipped`` key) - for benchmarks that must
+    finish in bounded time.
     """
     from tqdm import tqdm
 
@@ -201,6 +202,7 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
     total = sum(len(v) for v in indices.values()) * len(methods)
     result = Evaluation()
     warmed: set[str] = set()
+    spent: dict[tuple[str, str], float] = {}
     with tqdm(total=total, desc="eval", unit="run", disable=not progress, file=sys.stderr,
               dynamic_ncols=True) as bar:
         for label, ds in datasets:
@@ -212,11 +214,17 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                 outs: dict[str, StereoOutput | None] = {}
                 for m in methods:
                     bar.set_postfix_str(f"{label}/{name} {m}", refresh=False)
+                    if budget is not None and spent.get((m, label), 0.0) > budget:
+                        result.pairs.append(PairResult(m, label, name, None, None, math.nan, math.nan, skipped=True))
+                        outs[m] = None
+                        bar.update(1)
+                        continue
                     if m not in warmed:
                         _warm_up(fns[m], item, md)
                         warmed.add(m)
                     res, out = _run_one(fns[m], left, right, md, item, fill)
                     result.pairs.append(PairResult(m, label, name, *res))
+                    spent[(m, label)] = spent.get((m, label), 0.0) + (0.0 if math.isnan(res[2]) else res[2])
                     outs[m] = out
                     bar.update(1)
                 if plots is not None:
@@ -229,16 +237,20 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
 
 def _run_one(fn: Callable, left: torch.Tensor, right: torch.Tensor, max_disp: int, item: dict,
              fill: bool) -> tuple[tuple, StereoOutput | None]:
-    """Run and measure one matcher call; failures come back as an error message, never an exception."""
+    """Run and measure one matcher call; failures come back as an error message, never an exception.
+
+    Returns ``((metrics, raw_metrics, seconds, peak_mib, error), output)``.
+    """
     try:
         with torch.no_grad(), PeakMemory() as mem, Stopwatch() as clock:
             out = fn(left, right, max_disp)
+        raw = pair_metrics(out, item)
         if fill:
             out = apply_fill(out)
-        return (pair_metrics(out, item), clock.seconds, mem.peak_mib, None), out
+        return (pair_metrics(out, item) if fill else raw, raw, clock.seconds, mem.peak_mib, None), out
     except Exception as e:  # noqa: BLE001 - one failing method must not stop the comparison
         msg = " ".join(str(e).split()) or "no message"
-        return (None, math.nan, math.nan, f"{type(e).__name__}: {msg}"), None
+        return (None, None, math.nan, math.nan, f"{type(e).__name__}: {msg}"), None
 
 
 def _mean(values: list[float]) -> float | None:
@@ -247,7 +259,10 @@ def _mean(values: list[float]) -> float | None:
 
 
 def aggregate(pairs: Sequence[PairResult], methods: Sequence[str], datasets: Sequence[str]) -> list[dict]:
-    """One row per (method, dataset): per-pair means of every metric, mean seconds, max peak MiB."""
+    """One row per (method, dataset): per-pair means of every metric, mean seconds, max peak MiB.
+
+    With ``--fill`` the rows also carry ``density_raw`` and ``bad2_raw`` (before filling).
+    """
     rows = []
     for d in datasets:
         for m in methods:
@@ -259,10 +274,14 @@ def aggregate(pairs: Sequence[PairResult], methods: Sequence[str], datasets: Seq
                 row[k] = _mean([p.metrics.get(k) for p in ok])
             for k in METRICS:
                 row.setdefault(k, None)
+            if any(p.raw_metrics is not p.metrics for p in ok):
+                for k in ("density", "bad2"):
+                    row[f"{k}_raw"] = _mean([p.raw_metrics.get(k) for p in ok])
             row["seconds"] = _mean([p.seconds for p in ok])
             peaks = [p.peak_mib for p in ok]
             row["peak_mib"] = float(max(peaks)) if peaks else None
-            row["failed"] = len(sel) - len(ok)
+            row["failed"] = sum(1 for p in sel if p.error)
+            row["skipped"] = sum(1 for p in sel if p.skipped)
             errors = [p.error for p in sel if p.error]
             if errors:
                 row["error"] = errors[0]
@@ -300,8 +319,9 @@ def format_table(rows: Sequence[dict]) -> str:
         out.append(" ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))))
     notes = [f"! {r['method']} on {r['dataset']}: failed on {r['failed']} pair(s): {r.get('error', '')}"
              for r in rows if r.get("failed")]
-    legend = ("EPE in px; bad-t = % of GT pixels with error > t px; D1 = KITTI (>3 px and >5 %); dens = % valid "
-              "predictions (invalid ones count as errors); -noc = non-occluded pixels only; per-pair means.")
+    legend = ("EPE/SEE in px over predicted pixels; bad-t = % of GT pixels with error > t px, D1 = KITTI "
+              "(>3 px and >5 %), both counting missing predictions as errors; dens = % of GT pixels predicted; "
+              "-noc = non-occluded pixels only; per-pair means; s/pair and MiB = matcher call only.")
     return "\n".join(out + notes + [legend])
 
 
@@ -309,36 +329,40 @@ def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip("_") or "pair"
 
 
-def _plot_pair(path: Path, item: dict, outs: dict[str, StereoOutput | None], max_disp: int) -> None:
-    """Panel: left | GT | each method's disparity (top row), blank | blank | each method's error map (bottom)."""
+def pair_panel(item: dict, outs: dict[str, StereoOutput | None], max_disp: int, per_row: int = 3) -> np.ndarray:
+    """Picture of one pair: left | GT, then per method its colour disparity | its error map, ``per_row``
+    such couples per row (rows stacked). Disparities share one colour scale (0..max_disp). uint8 (H', W', 3)."""
     from stereonet import viz
+    from stereonet.io import to_uint8_rgb
 
-    left = _batch(item["left"])[0]
+    img = to_uint8_rgb(_batch(item["left"])[0])
+    img = np.repeat(img[:, :, None], 3, axis=2) if img.ndim == 2 else img
     gt = _batch(item["disparity"])[0, 0].cpu().numpy()
     gt_valid = _batch(item["valid"])[0, 0].cpu().numpy().astype(bool)
-    img = (left.clamp(0, 1) * 255 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
-    img = np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
     blank = np.full_like(img, 255)
-    top, bottom, titles_top, titles_bottom = [img, viz.colorize_disparity(gt, max_disp, gt_valid)], \
-        [blank, blank], ["left", "ground truth"], ["", ""]
+    couples = [((img, "left"), (viz.colorize_disparity(gt, max_disp, gt_valid), "ground truth"))]
     for m, out in outs.items():
         if out is None:
-            top.append(blank)
-            bottom.append(blank)
-            titles_top.append(f"{m} (failed)")
-            titles_bottom.append("")
+            couples.append(((blank, f"{m}: failed/skipped"), (blank, "")))
             continue
-        d = out.disparity[0, 0].cpu().numpy()
+        d = out.disparity[0, 0].float().cpu().numpy()
         v = out.valid[0, 0].cpu().numpy()
-        top.append(viz.colorize_disparity(d, max_disp, v))
-        bottom.append(viz.error_map(np.where(v, d, 0.0), gt, gt_valid))
-        titles_top.append(m)
-        titles_bottom.append(f"{m} error")
-    a = viz.panel(top, titles_top)
-    b = viz.panel(bottom, titles_bottom)
-    width = max(a.shape[1], b.shape[1])
-    pad = lambda x: np.pad(x, ((0, 0), (0, width - x.shape[1]), (0, 0)), constant_values=255)
-    viz.save_png(path, np.concatenate([pad(a), pad(b)], axis=0))
+        couples.append(((viz.colorize_disparity(d, max_disp, v), m),
+                        (viz.error_map(np.where(v, d, 0.0), gt, gt_valid), f"{m} error")))
+    rows = []
+    for i in range(0, len(couples), per_row):
+        tiles = [t for c in couples[i:i + per_row] for t in c]
+        tiles += [(blank, "")] * (2 * per_row - len(tiles)) if i else []
+        rows.append(viz.panel([t[0] for t in tiles], [t[1] for t in tiles]))
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
+    return np.concatenate(rows, axis=0)
+
+
+def _plot_pair(path: Path, item: dict, outs: dict[str, StereoOutput | None], max_disp: int) -> None:
+    from stereonet import viz
+
+    viz.save_png(path, pair_panel(item, outs, max_disp))
 
 
 def plot_bad2(rows: Sequence[dict], path: Path, key: str = "bad2") -> None:
