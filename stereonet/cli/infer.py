@@ -127,26 +127,12 @@ def read_pair(pair: Pair, device: torch.device) -> tuple[torch.Tensor, torch.Ten
     return left.contiguous().to(device), right.contiguous().to(device)
 
 
-def sift_matches(left: torch.Tensor, right: torch.Tensor, ratio: float = 0.75) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT keypoints matched with Lowe's ratio test: pixel coordinates (N, 2) in left and right."""
-    import cv2
+def sift_matches(left: torch.Tensor, right: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT matches (:func:`stereonet.features.match_sift`, ratio test, mutual): (N, 2) pixel coordinates each."""
+    from stereonet.features import match_sift
 
-    from stereonet.io import to_uint8_rgb
-
-    def grey(img: torch.Tensor) -> np.ndarray:
-        a = to_uint8_rgb(img[:1])
-        return cv2.cvtColor(a, cv2.COLOR_RGB2GRAY) if a.ndim == 3 else a
-
-    sift = cv2.SIFT_create(nfeatures=4000)
-    kl, dl = sift.detectAndCompute(grey(left), None)
-    kr, dr = sift.detectAndCompute(grey(right), None)
-    if dl is None or dr is None or len(kl) < 2 or len(kr) < 2:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    good = [m for m, n in (p for p in cv2.BFMatcher(cv2.NORM_L2).knnMatch(dl, dr, k=2) if len(p) == 2)
-            if m.distance < ratio * n.distance]
-    pl = np.array([kl[m.queryIdx].pt for m in good], dtype=np.float64).reshape(-1, 2)
-    pr = np.array([kr[m.trainIdx].pt for m in good], dtype=np.float64).reshape(-1, 2)
-    return pl, pr
+    pl, pr = match_sift(left, right, min_matches=0)
+    return pl.numpy().reshape(-1, 2), pr.numpy().reshape(-1, 2)
 
 
 def estimate_max_disp(pl: np.ndarray, pr: np.ndarray, width: int, row_tol: float = 2.0) -> int | None:
@@ -207,7 +193,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
 
     left, right = read_pair(pair, device)
     info: dict = {"left": str(pair.left), "right": str(pair.right), "method": method, "rectified": None}
-    depth_calib = None
+    depth_calib, rect = None, None
     if calib is not None:
         check_calibration_size(calib, left, calib_path)
         depth_calib = calib
@@ -233,8 +219,11 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     if max_disp is None:
         if info["rectified"] is None and depth_calib is not None and depth_calib.ndisp:
             max_disp, source = cap_max_disp(int(depth_calib.ndisp), width), "calibration ndisp"
+        elif rect is not None and rect.disparity_range is not None:
+            hint = int(16 * math.ceil(max(rect.disparity_range[1] * 1.1, 1.0) / 16))
+            max_disp, source = cap_max_disp(hint, width), "inlier SIFT matches of the rectification"
         else:
-            if info["rectified"] is None:
+            if rect is None:
                 pl, pr = sift_matches(left, right)
             max_disp, source = estimate_max_disp(pl, pr, width), "SIFT matches"
             if max_disp is None:
@@ -253,10 +242,8 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     if depth_calib is not None:
         from stereonet.geometry import disparity_to_depth, disparity_to_points
 
-        depth = disparity_to_depth(out.disparity.double(), depth_calib)
-        dvalid = out.valid & torch.isfinite(depth) & (depth > 0)
-        write_disparity_pfm(out_dir / "depth.pfm", torch.where(dvalid, depth, torch.zeros_like(depth))[0, 0],
-                            dvalid[0, 0])
+        depth = disparity_to_depth(out.disparity.double(), depth_calib, valid=out.valid)  # 0 = no depth
+        write_disparity_pfm(out_dir / "depth.pfm", depth[0, 0], depth[0, 0] > 0)
         points, colors = disparity_to_points(out.disparity, out.valid, depth_calib, left)
         write_ply(out_dir / "cloud.ply", points, colors)
         info["points"] = int(len(points))

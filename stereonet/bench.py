@@ -1,0 +1,266 @@
+"""The fixed benchmark behind ``make bench``: every registered method on the real pairs of ../shared/data and a
+seeded synthetic set, written to ``BENCHMARKS.md`` with plots under ``docs/bench/``.
+
+    python -m stereonet.bench [--methods all] [--synthetic N] [--budget SECONDS] [--out BENCHMARKS.md]
+
+All methods run in this one process through :func:`stereonet.cli.eval.run_evaluation`, pair by pair, so
+their times and the ratios to ``opencv-sgbm`` are measured under the same load. Every number in the tables
+is the **median over pairs** (robust to one odd pair); the shared filling of ``eval.py --fill`` is applied
+to every method (dense comparison) and the raw bad-2 and density before filling are reported beside it.
+``--budget`` bounds the run: once a method has used that many seconds on one dataset its remaining pairs
+there are skipped, and the table says so.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from stereonet.cli.common import USER_ERRORS, OneLineParser, fail
+from stereonet.cli.eval import (
+    SHARED_DATA,
+    Evaluation,
+    PairResult,
+    expand_data_specs,
+    parse_methods,
+    plot_bad2,
+    run_evaluation,
+)
+
+PROG = "python -m stereonet.bench"
+REPO = Path(__file__).resolve().parents[1]
+REFERENCE = "opencv-sgbm"
+SYNTHETIC_PAIRS = 12
+
+
+def median_of(pairs: Sequence[PairResult], key: str, raw: bool = False) -> float | None:
+    """Median over pairs of one metric (``seconds``/``peak_mib`` or a metrics key); None when nothing ran."""
+    if key in ("seconds", "peak_mib"):
+        vals = [getattr(p, key) for p in pairs if p.metrics is not None]
+    else:
+        vals = [(p.raw_metrics if raw else p.metrics).get(key) for p in pairs if p.metrics is not None]
+    vals = [v for v in vals if v is not None and not math.isnan(v)]
+    return float(np.median(vals)) if vals else None
+
+
+def summarize(ev: Evaluation, groups: dict[str, list[str]]) -> list[dict]:
+    """Median rows per (method, group of datasets) with ratios to :data:`REFERENCE` in the same group."""
+    methods = list(dict.fromkeys(p.method for p in ev.pairs))
+    rows = []
+    for group, datasets in groups.items():
+        ref = [p for p in ev.pairs if p.method == REFERENCE and p.dataset in datasets]
+        ref_s, ref_b2 = median_of(ref, "seconds"), median_of(ref, "bad2")
+        for m in methods:
+            sel = [p for p in ev.pairs if p.method == m and p.dataset in datasets]
+            if not sel:
+                continue
+            row = {"method": m, "group": group, "pairs": sum(p.metrics is not None for p in sel),
+                   "failed": sum(p.error is not None for p in sel), "skipped": sum(p.skipped for p in sel)}
+            for k in ("epe", "bad1", "bad2", "bad4", "d1", "see", "epe_noc", "bad2_noc", "seconds", "peak_mib"):
+                row[k] = median_of(sel, k)
+            row["bad2_raw"] = median_of(sel, "bad2", raw=True)
+            row["density_raw"] = median_of(sel, "density", raw=True)
+            row["time_ratio"] = row["seconds"] / ref_s if row["seconds"] and ref_s else None
+            row["bad2_ratio"] = row["bad2"] / ref_b2 if row["bad2"] is not None and ref_b2 else None
+            rows.append(row)
+    return rows
+
+
+def _fmt(v: float | None, spec: str) -> str:
+    return "–" if v is None else format(v, spec)
+
+
+def markdown_table(rows: Sequence[dict], group: str) -> str:
+    head = ("| method | pairs | EPE | bad-1 | bad-2 | bad-4 | D1 | SEE | bad-2 noc | bad-2 raw | density raw | "
+            "s/pair | × sgbm time | ÷ sgbm bad-2 | peak MiB |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    sel = sorted((r for r in rows if r["group"] == group),
+                 key=lambda r: (r["bad2"] is None, r["bad2"] if r["bad2"] is not None else 0))
+    for r in sel:
+        note = "".join([f" ({r['failed']} failed)" if r["failed"] else "",
+                        f" ({r['skipped']} skipped: time budget)" if r["skipped"] else ""])
+        lines.append("| " + " | ".join([
+            f"`{r['method']}`{note}", str(r["pairs"]), _fmt(r["epe"], ".2f"), _fmt(r["bad1"], ".1f"),
+            _fmt(r["bad2"], ".1f"), _fmt(r["bad4"], ".1f"), _fmt(r["d1"], ".1f"), _fmt(r["see"], ".2f"),
+            _fmt(r["bad2_noc"], ".1f"), _fmt(r["bad2_raw"], ".1f"), _fmt(r["density_raw"], ".1f"),
+            _fmt(r["seconds"], ".3f"), _fmt(r["time_ratio"], ".1f"), _fmt(r["bad2_ratio"], ".2f"),
+            _fmt(r["peak_mib"], ".0f")]) + " |")
+    return "\n".join(lines)
+
+
+def plot_speed_accuracy(rows: Sequence[dict], group: str, path: Path) -> None:
+    """Scatter: median seconds per pair (log) vs median bad-2, one labelled point per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stereonet.io.atomic import atomic_path
+
+    sel = [r for r in rows if r["group"] == group and r["seconds"] and r["bad2"] is not None]
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for r in sel:
+        ax.scatter(r["seconds"], r["bad2"], color="tab:red" if r["method"] == REFERENCE else "tab:blue")
+        ax.annotate(r["method"], (r["seconds"], r["bad2"]), fontsize=8, xytext=(3, 3), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_xlabel("seconds per pair (median, log scale)")
+    ax.set_ylabel("bad-2 % after fill (median, lower is better)")
+    ax.set_title(f"speed vs accuracy: {group}")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+
+
+def _copy_panel(src: Path, dst: Path, max_width: int = 1800) -> bool:
+    """Copy a per-pair panel into docs, shrunk to ``max_width`` (area interpolation); False when absent."""
+    import cv2
+
+    from stereonet.io import read_array, write_image
+
+    if not src.is_file():
+        return False
+    img = read_array(src)
+    if img.shape[1] > max_width:
+        s = max_width / img.shape[1]
+        img = cv2.resize(img, (max_width, round(img.shape[0] * s)), interpolation=cv2.INTER_AREA)
+    write_image(dst, img)
+    return True
+
+
+def _environment() -> str:
+    import cv2
+    import torch
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
+                                text=True, timeout=10).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        commit = "unknown"
+    return (f"{_dt.datetime.now(_dt.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}, commit `{commit}`, "
+            f"{platform.machine()} {os.cpu_count()} CPU cores (torch threads: {torch.get_num_threads()}), "
+            f"Python {platform.python_version()}, torch {torch.__version__}, OpenCV {cv2.__version__}")
+
+
+def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: Path, plots_tmp: Path,
+                 synthetic_spec: str, seconds_total: float) -> None:
+    from stereonet import matchers
+    from stereonet.io.atomic import atomic_write_text
+
+    rows = summarize(ev, groups)
+    per_dataset = summarize(ev, {d: [d] for ds in groups.values() for d in ds})
+    docs.mkdir(parents=True, exist_ok=True)
+    rel = os.path.relpath(docs, out.parent)
+    parts = [
+        "# Benchmarks",
+        "",
+        "Generated by `make bench` (`python -m stereonet.bench`); do not edit by hand. "
+        f"Run: {_environment()}; the whole benchmark took {seconds_total / 60:.1f} min.",
+        "",
+        "Every method ran in the same process on the same pairs: the real pairs with ground truth in "
+        f"`../shared/data` (Middlebury 2001/2003, KITTI 2012/2015; never used for training) and the seeded "
+        f"synthetic set `{synthetic_spec}` of data_gen. Numbers are **medians over pairs**. All methods get the "
+        "same occlusion filling (`eval.py --fill`), so the main columns compare dense maps; `bad-2 raw` and "
+        "`density raw` are before filling. bad-τ and D1 are % of ground-truth pixels (missing predictions count "
+        "as errors), EPE and SEE (SMD-Nets soft edge error on depth discontinuities) are in pixels; `noc` = "
+        "non-occluded pixels (datasets with an occlusion mask). `× sgbm time` and `÷ sgbm bad-2` are ratios to "
+        f"`{REFERENCE}` medians on the same pairs; peak MiB is the extra resident memory of one call (see "
+        "`stereonet/cli/common.py`). Rows are sorted by bad-2.",
+        "",
+    ]
+    for group in groups:
+        parts += [f"## {group}: median over pairs", "", markdown_table(rows, group), ""]
+        path = docs / f"speed_accuracy_{group}.png"
+        plot_speed_accuracy(rows, group, path)
+        parts += [f"![speed vs accuracy on {group}]({rel}/{path.name})", ""]
+    plot_bad2([dict(r, dataset=r["group"]) for r in per_dataset], docs / "bad2_per_dataset.png")
+    parts += ["## Per dataset", "", f"![bad-2 per method and dataset]({rel}/bad2_per_dataset.png)", ""]
+    for d in (d for ds in groups.values() for d in ds):
+        parts += [f"### {d}", "", markdown_table(per_dataset, d), ""]
+    shown = []
+    for d in (d for ds in groups.values() for d in ds):
+        folder = plots_tmp / "".join(c if c.isalnum() or c in "-_." else "_" for c in d).strip("_")
+        first = sorted(folder.glob("*.png"))[:1] if folder.is_dir() else []
+        for src in first:
+            dst = docs / f"panel_{folder.name}_{src.stem}.png"
+            if _copy_panel(src, dst):
+                shown.append((d, src.stem, dst))
+    if shown:
+        parts += ["## What the maps look like", "",
+                  "Left image, ground truth, then each method's disparity and error map (same colour scale).", ""]
+        for d, name, dst in shown:
+            parts += [f"**{d} / {name}**", "", f"![{d} {name}]({rel}/{dst.name})", ""]
+    failures = [p for p in ev.pairs if p.error]
+    if failures:
+        parts += ["## Failures", ""]
+        seen = set()
+        for p in failures:
+            if (p.method, p.error) not in seen:
+                seen.add((p.method, p.error))
+                parts.append(f"- `{p.method}` on {p.dataset}/{p.pair}: {p.error}")
+        parts.append("")
+    kinds = {n: matchers.spec(n).kind for n in dict.fromkeys(p.method for p in ev.pairs)}
+    parts += ["## Methods", "", "| method | kind | description |", "|---|---|---|"]
+    parts += [f"| `{n}` | {k} | {matchers.spec(n).description} |" for n, k in kinds.items()]
+    atomic_write_text(out, "\n".join(parts) + "\n")
+
+
+def build_parser() -> OneLineParser:
+    p = OneLineParser(prog=PROG, description="Run the fixed benchmark and write BENCHMARKS.md + docs/bench/.")
+    p.add_argument("--methods", default="all", help="comma-separated names or 'all' (default)")
+    p.add_argument("--synthetic", type=int, default=SYNTHETIC_PAIRS, help="synthetic pairs (default %(default)s)")
+    p.add_argument("--no-real", action="store_true", help="skip ../shared/data")
+    p.add_argument("--budget", type=float, default=240.0,
+                   help="seconds a method may spend per dataset before its remaining pairs are skipped")
+    p.add_argument("--out", type=Path, default=REPO / "BENCHMARKS.md")
+    p.add_argument("--docs", type=Path, default=REPO / "docs" / "bench")
+    p.add_argument("--no-progress", action="store_true")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import time
+
+    args = build_parser().parse_args(argv)
+    try:
+        methods = parse_methods(args.methods)
+        if args.synthetic < 0:
+            raise ValueError(f"--synthetic: expected a count >= 0, got {args.synthetic}")
+        real = [] if args.no_real or not SHARED_DATA.is_dir() else expand_data_specs("real")
+        synthetic = f"synthetic:{args.synthetic}" if args.synthetic else None
+        specs = real + ([synthetic] if synthetic else [])
+        if not specs:
+            raise ValueError("nothing to run: no real data and --synthetic 0")
+        from stereonet.cli.eval import dataset_label
+
+        groups = {}
+        if real:
+            groups["real"] = [dataset_label(s) for s in real]
+        if synthetic:
+            groups["synthetic"] = [dataset_label(synthetic)]
+        t0 = time.perf_counter()
+        with tempfile.TemporaryDirectory(prefix="stereonet-bench-") as tmp:
+            ev = run_evaluation(methods, specs, fill=True, plots=Path(tmp), progress=not args.no_progress,
+                                budget=args.budget)
+            write_report(ev, groups, args.out.resolve(), args.docs.resolve(), Path(tmp), synthetic or "none",
+                         time.perf_counter() - t0)
+    except USER_ERRORS as e:
+        return fail(PROG, e)
+    except ImportError as e:
+        return fail(PROG, f"{e} (this part of stereonet is not installed)")
+    print(f"wrote {args.out} and plots in {args.docs}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
