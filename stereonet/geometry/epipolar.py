@@ -1,0 +1,414 @@
+"""Two-view epipolar geometry: the normalized eight-point F, robust F, epipolar lines, epipoles, E and pose.
+
+Convention: ``x2^T F x1 = 0`` for a point ``x1`` of the first (left) image and its match ``x2`` in the second
+(right) image, pixels in ``(u, v)`` order. ``E = K2^T F K1`` and, with the pose ``X_2 = R X_1 + t``,
+``E = [t]_x R``. F has 7 degrees of freedom (scale fixed to ``||F||_F = 1``, ``det F = 0``), E has 5 (its two
+non-zero singular values are equal; we scale them to 1).
+
+All solvers run in float64 internally and return the input's dtype.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+from kornia.geometry.homography import find_homography_dlt
+
+from stereonet.geometry.camera import DegenerateGeometryError, check_intrinsics, check_points
+
+__all__ = [
+    "FundamentalEstimate",
+    "PoseEstimate",
+    "cross_product_matrix",
+    "decompose_essential",
+    "epipolar_lines",
+    "epipoles",
+    "essential_from_fundamental",
+    "essential_from_pose",
+    "fundamental_8point",
+    "fundamental_from_essential",
+    "fundamental_from_pose",
+    "fundamental_robust",
+    "homography_explains_matches",
+    "normalize_points_hartley",
+    "pose_from_essential",
+    "project_to_essential",
+    "sampson_distance",
+]
+
+# Relative size of the 8th singular value of the eight-point system below which the correspondences do not
+# determine F (duplicate, collinear or exactly coplanar configurations): a few ulps of float64 work.
+_RANK_TOL = {torch.float64: 1e-11, torch.float32: 1e-5, torch.float16: 1e-2, torch.bfloat16: 1e-2}
+
+
+def cross_product_matrix(v: torch.Tensor) -> torch.Tensor:
+    """``[v]_x`` :math:`(*, 3, 3)` for ``v`` :math:`(*, 3)`, so that ``[v]_x w = v x w``."""
+    x, y, z = v.unbind(-1)
+    zero = torch.zeros_like(x)
+    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(v.shape[:-1] + (3, 3))
+
+
+def _homogeneous(points: torch.Tensor) -> torch.Tensor:
+    return torch.cat([points, torch.ones_like(points[..., :1])], dim=-1)
+
+
+def _fix_scale_and_sign(M: torch.Tensor) -> torch.Tensor:
+    """Scale to unit Frobenius norm and make the largest-magnitude entry positive (a canonical F)."""
+    M = M / torch.linalg.matrix_norm(M).clamp_min(1e-300)[..., None, None]
+    flat = M.flatten(-2)  # *x9
+    sign = torch.gather(flat, -1, flat.abs().argmax(-1, keepdim=True)).sign()
+    return M * sign.unsqueeze(-1)
+
+
+def normalize_points_hartley(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Hartley normalisation: centroid at the origin, mean distance to it :math:`\\sqrt 2`.
+
+    Args:
+        points: :math:`(*, N, 2)`.
+
+    Returns:
+        (normalized points :math:`(*, N, 2)`, ``T`` :math:`(*, 3, 3)` with ``x_norm = T x``).
+
+    Raises:
+        DegenerateGeometryError: when all points coincide (no scale can be defined).
+    """
+    centroid = points.mean(dim=-2, keepdim=True)  # *x1x2
+    centred = points - centroid
+    mean_dist = torch.linalg.vector_norm(centred, dim=-1).mean(dim=-1)  # *
+    if bool((mean_dist <= 1e-12 * (1.0 + centroid.detach().abs().amax())).any()):
+        raise DegenerateGeometryError("points: all points coincide; Hartley normalisation needs spread points")
+    scale = math.sqrt(2.0) / mean_dist  # *
+    zero, one = torch.zeros_like(scale), torch.ones_like(scale)
+    cx, cy = centroid[..., 0, 0], centroid[..., 0, 1]
+    T = torch.stack([scale, zero, -scale * cx, zero, scale, -scale * cy, zero, zero, one], -1)
+    return centred * scale[..., None, None], T.reshape(scale.shape + (3, 3))
+
+
+def _eight_point_system(x1: torch.Tensor, x2: torch.Tensor) -> torch.Tensor:
+    """Rows of the M x 9 system ``A f = 0`` for ``x2^T F x1 = 0`` with ``f`` = F in row-major order."""
+    u1, v1 = x1.unbind(-1)
+    u2, v2 = x2.unbind(-1)
+    one = torch.ones_like(u1)
+    return torch.stack([u2 * u1, u2 * v1, u2, v2 * u1, v2 * v1, v2, u1, v1, one], dim=-1)  # *xMx9
+
+
+def _eight_point_core(pts1: torch.Tensor, pts2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The textbook normalized eight-point steps, no input checks (float64).
+
+    Returns (F :math:`(*, 3, 3)` canonical scale/sign, rank margin :math:`(*)` = sigma_8 / sigma_1 of A).
+    """
+    x1, T1 = normalize_points_hartley(pts1)  # 1. Hartley normalisation of both point sets
+    x2, T2 = normalize_points_hartley(pts2)
+    A = _eight_point_system(x1, x2)  # 2. the M x 9 system, *xMx9
+    if A.shape[-2] < 9:  # pad with zero rows so a thin SVD still returns all 9 right singular vectors
+        A = torch.cat([A, A.new_zeros(A.shape[:-2] + (9 - A.shape[-2], 9))], dim=-2)
+    _, s, Vh = torch.linalg.svd(A, full_matrices=False)  # 3. SVD: f = right singular vector of sigma_min
+    F_norm = Vh[..., -1, :].reshape(A.shape[:-2] + (3, 3))
+    U, sf, Vfh = torch.linalg.svd(F_norm)  # 4. rank 2: zero the smallest singular value
+    sf = torch.stack([sf[..., 0], sf[..., 1], torch.zeros_like(sf[..., 2])], dim=-1)
+    F_norm = U @ torch.diag_embed(sf) @ Vfh
+    F = T2.transpose(-1, -2) @ F_norm @ T1  # 5. de-normalisation: F = T2^T F_norm T1
+    return _fix_scale_and_sign(F), s[..., 7] / s[..., 0].clamp_min(1e-300)
+
+
+def fundamental_8point(pts1: torch.Tensor, pts2: torch.Tensor) -> torch.Tensor:
+    """Normalized eight-point algorithm (Hartley & Zisserman, Alg. 11.1).
+
+    Steps: Hartley normalisation of each image's points, the M x 9 linear system, its SVD, rank-2
+    enforcement by zeroing F's smallest singular value, de-normalisation ``F = T2^T F_n T1``; F is returned
+    with ``||F||_F = 1`` and its largest-magnitude entry positive. Differentiable (SVD) for M >= 8 points in
+    general position.
+
+    Args:
+        pts1, pts2: matching pixels :math:`(*, M, 2)`, M >= 8.
+
+    Returns:
+        F :math:`(*, 3, 3)` with ``x2^T F x1 = 0``, dtype of ``pts1``.
+
+    Raises:
+        DegenerateGeometryError: fewer than 8 matches, or a configuration that leaves F undetermined
+            (coincident/collinear points, an exactly planar scene, pure rotation).
+    """
+    check_points(pts1, "pts1", 2, min_count=8)
+    check_points(pts2, "pts2", 2, min_count=8)
+    if pts1.shape != pts2.shape:
+        raise DegenerateGeometryError(f"pts2: expected the same shape as pts1 {tuple(pts1.shape)}, "
+                                      f"got {tuple(pts2.shape)}")
+    F, margin = _eight_point_core(pts1.double(), pts2.double())
+    if bool((margin < _RANK_TOL.get(pts1.dtype, 1e-5)).any()):
+        raise DegenerateGeometryError(
+            "pts1, pts2: the eight-point system has rank < 8, so F is not determined (coincident, collinear or "
+            f"coplanar points, or a pure rotation); smallest relative singular value {float(margin.min()):.1e}")
+    return F.to(pts1.dtype)
+
+
+def sampson_distance(pts1: torch.Tensor, pts2: torch.Tensor, F: torch.Tensor, squared: bool = True) -> torch.Tensor:
+    """First-order geometric error of ``x2^T F x1 = 0``:
+    ``(x2^T F x1)^2 / ((F x1)_1^2 + (F x1)_2^2 + (F^T x2)_1^2 + (F^T x2)_2^2)`` in px² (px if not squared).
+
+    Args:
+        pts1, pts2: :math:`(*, N, 2)`; F :math:`(*, 3, 3)` (broadcast over leading dims).
+
+    Returns:
+        :math:`(*, N)`. A correspondence at both epipoles (zero denominator) gets its squared algebraic error
+        divided by 1e-300 instead of a NaN.
+    """
+    x1, x2 = _homogeneous(pts1), _homogeneous(pts2)
+    Fx1 = x1 @ F.transpose(-1, -2)  # *xNx3, rows are (F x1)^T
+    Ftx2 = x2 @ F  # *xNx3, rows are (F^T x2)^T
+    algebraic = (x2 * Fx1).sum(-1)
+    denom = Fx1[..., 0] ** 2 + Fx1[..., 1] ** 2 + Ftx2[..., 0] ** 2 + Ftx2[..., 1] ** 2
+    d2 = algebraic**2 / denom.clamp_min(1e-300)
+    return d2 if squared else d2.clamp_min(0).sqrt()
+
+
+def epipolar_lines(points: torch.Tensor, F: torch.Tensor, in_image: int = 2) -> torch.Tensor:
+    """Epipolar lines ``(a, b, c)`` with ``a^2 + b^2 = 1`` (so ``a u + b v + c`` is a distance in px).
+
+    Args:
+        points: :math:`(*, N, 2)` in image 1 when ``in_image == 2`` (lines ``F x1`` in image 2), in image 2
+            when ``in_image == 1`` (lines ``F^T x2`` in image 1).
+        F: :math:`(*, 3, 3)`.
+
+    Returns:
+        lines :math:`(*, N, 3)`.
+    """
+    if in_image not in (1, 2):
+        raise ValueError(f"in_image: expected 1 or 2, got {in_image!r}")
+    M = F if in_image == 2 else F.transpose(-1, -2)
+    lines = _homogeneous(points) @ M.transpose(-1, -2)  # *xNx3
+    return lines / torch.linalg.vector_norm(lines[..., :2], dim=-1, keepdim=True).clamp_min(1e-300)
+
+
+def epipoles(F: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Epipoles as unit homogeneous vectors: ``e1`` with ``F e1 = 0`` (image 1), ``e2`` with ``F^T e2 = 0``.
+
+    Returns:
+        (e1, e2) each :math:`(*, 3)`, sign chosen so that the last coordinate is >= 0. Divide by the last
+        coordinate for pixels; a last coordinate ~0 means the epipole is at infinity (e.g. a rectified pair).
+    """
+    U, _, Vh = torch.linalg.svd(F)
+    e1, e2 = Vh[..., 2, :], U[..., :, 2]
+    e1 = e1 * torch.where(e1[..., 2:] < 0, -1.0, 1.0)
+    e2 = e2 * torch.where(e2[..., 2:] < 0, -1.0, 1.0)
+    return e1, e2
+
+
+def essential_from_fundamental(F: torch.Tensor, K1: torch.Tensor, K2: torch.Tensor) -> torch.Tensor:
+    """``E = K2^T F K1`` projected to the essential manifold (equal singular values, see
+    :func:`project_to_essential`). F :math:`(*, 3, 3)`, K1, K2 :math:`(*, 3, 3)`."""
+    check_intrinsics(K1, "K1")
+    check_intrinsics(K2, "K2")
+    return project_to_essential(K2.transpose(-1, -2) @ F @ K1)
+
+
+def fundamental_from_essential(E: torch.Tensor, K1: torch.Tensor, K2: torch.Tensor) -> torch.Tensor:
+    """``F = K2^{-T} E K1^{-1}``, canonical scale/sign as :func:`fundamental_8point`."""
+    check_intrinsics(K1, "K1")
+    check_intrinsics(K2, "K2")
+    return _fix_scale_and_sign(torch.linalg.inv(K2).transpose(-1, -2) @ E @ torch.linalg.inv(K1))
+
+
+def essential_from_pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """``E = [t]_x R`` for ``X_2 = R X_1 + t`` (R :math:`(*, 3, 3)`, t :math:`(*, 3)`)."""
+    return cross_product_matrix(t) @ R
+
+
+def fundamental_from_pose(K1: torch.Tensor, K2: torch.Tensor, R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """F of a calibrated rig (``X_2 = R X_1 + t``), canonical scale/sign."""
+    return fundamental_from_essential(essential_from_pose(R, t), K1, K2)
+
+
+def project_to_essential(E: torch.Tensor) -> torch.Tensor:
+    """Closest essential matrix (Frobenius): ``U diag(1, 1, 0) V^T`` from the SVD of ``E``.
+
+    Raises:
+        DegenerateGeometryError: when E is (numerically) zero, i.e. a pure rotation with t = 0.
+    """
+    U, s, Vh = torch.linalg.svd(E)
+    if bool((s[..., 0] <= 1e-12 * E.detach().abs().amax().clamp_min(1e-300)).any()) or bool((s[..., 0] == 0).any()):
+        raise DegenerateGeometryError("E: the essential matrix is zero (pure rotation without translation)")
+    ones = torch.ones_like(s)
+    ones = torch.stack([ones[..., 0], ones[..., 1], torch.zeros_like(ones[..., 2])], -1)
+    return U @ torch.diag_embed(ones) @ Vh
+
+
+def decompose_essential(E: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The four ``(R, t)`` of an essential matrix (H&Z Result 9.19), ``|t| = 1``.
+
+    Returns:
+        (R :math:`(*, 4, 3, 3)`, t :math:`(*, 4, 3)`) in the order (R_a, t), (R_a, -t), (R_b, t), (R_b, -t).
+    """
+    U, _, Vh = torch.linalg.svd(E)
+    # Proper rotations: negating U or V changes only the (irrelevant) sign of E.
+    U = U * torch.where(torch.linalg.det(U) < 0, -1.0, 1.0)[..., None, None]
+    Vh = Vh * torch.where(torch.linalg.det(Vh) < 0, -1.0, 1.0)[..., None, None]
+    W = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=E.dtype, device=E.device)
+    Ra, Rb = U @ W @ Vh, U @ W.T @ Vh
+    t = U[..., :, 2]
+    R4 = torch.stack([Ra, Ra, Rb, Rb], dim=-3)  # *x4x3x3
+    t4 = torch.stack([t, -t, t, -t], dim=-2)  # *x4x3
+    return R4, t4
+
+
+class PoseEstimate(NamedTuple):
+    """Relative pose from E: ``X_2 = R X_1 + t`` with ``|t| = 1``; ``in_front`` counts the matches in front
+    of both cameras for each of the four candidates :math:`(4,)` (order of :func:`decompose_essential`)."""
+
+    R: torch.Tensor
+    t: torch.Tensor
+    in_front: torch.Tensor
+
+
+def pose_from_essential(E: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor, K1: torch.Tensor,
+                        K2: torch.Tensor) -> PoseEstimate:
+    """Pick the one of the four decompositions of E that puts the matches in front of both cameras.
+
+    Args:
+        E: :math:`(3, 3)`; pts1, pts2: matching (undistorted) pixels :math:`(N, 2)`; K1, K2: :math:`(3, 3)`.
+
+    Returns:
+        :class:`PoseEstimate` (R :math:`(3, 3)`, t :math:`(3,)`, in_front counts :math:`(4,)` per candidate).
+
+    Raises:
+        DegenerateGeometryError: E is zero (pure rotation), or no candidate has a majority of the matches in
+            front of both cameras (wrong E or mismatched points).
+    """
+    from stereonet.geometry.triangulate import triangulate_dlt
+
+    check_points(pts1, "pts1", 2)
+    check_points(pts2, "pts2", 2)
+    E = project_to_essential(E)
+    R4, t4 = decompose_essential(E)
+    P1 = torch.cat([K1, K1.new_zeros(3, 1)], dim=-1)  # 3x4
+    P2 = K2 @ torch.cat([R4, t4.unsqueeze(-1)], dim=-1)  # 4x3x4
+    X = triangulate_dlt(P1.expand(4, 3, 4), P2, pts1.expand(4, -1, -1), pts2.expand(4, -1, -1))  # 4xNx3
+    z1 = X[..., 2]
+    z2 = (X @ R4.transpose(-1, -2) + t4.unsqueeze(-2))[..., 2]
+    counts = ((z1 > 0) & (z2 > 0)).sum(-1)
+    best = int(counts.argmax())
+    if int(counts[best]) * 2 <= pts1.shape[-2]:
+        raise DegenerateGeometryError(
+            f"E, pts1, pts2: no decomposition puts most matches in front of both cameras (best {int(counts[best])} "
+            f"of {pts1.shape[-2]}); E does not fit these matches")
+    return PoseEstimate(R4[best], t4[best], counts)
+
+
+def homography_explains_matches(pts1: torch.Tensor, pts2: torch.Tensor, threshold: float = 1.0,
+                                fraction: float = 0.9) -> bool:
+    """True when one homography maps ``fraction`` of ``pts1`` onto ``pts2`` within ``threshold`` px: a planar
+    scene or a pure rotation, where F is not determined by the matches. pts :math:`(N, 2)`, N >= 4."""
+    H = find_homography_dlt(pts1.double()[None], pts2.double()[None], solver="svd")[0]
+    if not bool(torch.isfinite(H).all()):
+        return False
+    mapped = _homogeneous(pts1.double()) @ H.T
+    w = mapped[:, 2:]
+    ok = w.abs() > 1e-12
+    err = torch.linalg.vector_norm(mapped[:, :2] / torch.where(ok, w, torch.ones_like(w)) - pts2.double(), dim=-1)
+    err = torch.where(ok[:, 0], err, torch.full_like(err, float("inf")))
+    return bool((err < threshold).double().mean() >= fraction)
+
+
+class FundamentalEstimate(NamedTuple):
+    """Robust F: the matrix :math:`(3, 3)` and the inlier mask :math:`(N,)` bool."""
+
+    F: torch.Tensor
+    inliers: torch.Tensor
+
+
+def _sample_minimal_sets(num_points: int, count: int, generator: torch.Generator) -> torch.Tensor:
+    weights = torch.ones(count, num_points, dtype=torch.float64)
+    return torch.multinomial(weights, 8, replacement=False, generator=generator)  # countx8
+
+
+def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ransac", threshold: float = 1.0,
+                       confidence: float = 0.999, max_iterations: int = 5000, batch_size: int = 256,
+                       seed: int = 0, check_planar: bool = True) -> FundamentalEstimate:
+    """Robust F by RANSAC or LMedS over eight-point hypotheses, scored with the Sampson distance.
+
+    Hypotheses are drawn ``batch_size`` at a time and solved and scored as one batched tensor computation.
+    RANSAC keeps the hypothesis with most matches within ``threshold`` px (Sampson, not squared) and stops
+    when ``confidence`` is reached (adaptive count); LMedS keeps the one with the least median Sampson error
+    and sets the threshold to ``2.5 * 1.4826 * (1 + 5 / (N - 8)) * sqrt(median)``. The winner is refined by
+    the eight-point solve on its inliers until the inlier set stops changing (at most 5 times).
+
+    Args:
+        pts1, pts2: matching pixels :math:`(N, 2)`, N >= 8.
+        method: ``"ransac"`` or ``"lmeds"``.
+        threshold: RANSAC inlier threshold in px (Sampson distance).
+        seed: the random sampling is a pure function of it.
+        check_planar: refuse (DegenerateGeometryError) when a homography explains the inliers (planar scene,
+            pure rotation), where F is not determined.
+
+    Returns:
+        :class:`FundamentalEstimate` (F :math:`(3, 3)` in the input dtype, inliers :math:`(N,)` bool).
+    """
+    check_points(pts1, "pts1", 2, min_count=8)
+    check_points(pts2, "pts2", 2, min_count=8)
+    if pts1.dim() != 2 or pts1.shape != pts2.shape:
+        raise DegenerateGeometryError(f"pts1, pts2: expected two (N, 2) tensors of equal shape, got "
+                                      f"{tuple(pts1.shape)} and {tuple(pts2.shape)}")
+    if method not in ("ransac", "lmeds"):
+        raise ValueError(f"method: expected 'ransac' or 'lmeds', got {method!r}")
+    if not threshold > 0:
+        raise ValueError(f"threshold: expected a positive number of pixels, got {threshold!r}")
+    p1, p2 = pts1.detach().double(), pts2.detach().double()
+    n = p1.shape[0]
+    gen = torch.Generator().manual_seed(seed)
+    best_score, best_F = math.inf, None
+    needed, done = (max_iterations if method == "ransac" else min(max_iterations, 1000)), 0
+    while done < needed:
+        count = min(batch_size, needed - done)
+        idx = _sample_minimal_sets(n, count, gen)  # Hx8
+        try:
+            F_h, margin = _eight_point_core(p1[idx], p2[idx])  # Hx3x3
+        except DegenerateGeometryError:  # a sample of coincident points: redraw
+            done += count
+            continue
+        d2 = sampson_distance(p1.expand(count, n, 2), p2.expand(count, n, 2), F_h)  # HxN
+        if method == "ransac":
+            score = -((d2 < threshold**2) & (margin > 1e-12)[:, None]).sum(-1).double()
+        else:
+            score = torch.where(margin > 1e-12, d2.median(-1).values, torch.full_like(margin, math.inf))
+        k = int(score.argmin())
+        if float(score[k]) < best_score:
+            best_score, best_F = float(score[k]), F_h[k]
+            if method == "ransac":
+                w = -best_score / n
+                needed = min(max_iterations, _ransac_iterations(w, confidence))
+        done += count
+    if best_F is None:
+        raise DegenerateGeometryError("pts1, pts2: every sample was degenerate; the matches do not determine F")
+    if method == "lmeds":
+        sigma = 1.4826 * (1 + 5 / max(n - 8, 1)) * math.sqrt(max(best_score, 0.0))
+        threshold = max(2.5 * sigma, 1e-6)
+    inliers = sampson_distance(p1, p2, best_F) < threshold**2
+    for _ in range(5):
+        if int(inliers.sum()) < 8:
+            break
+        F_ref, _ = _eight_point_core(p1[inliers], p2[inliers])
+        new_inliers = sampson_distance(p1, p2, F_ref) < threshold**2
+        if int(new_inliers.sum()) < int(inliers.sum()):
+            break
+        best_F, changed, inliers = F_ref, bool((new_inliers != inliers).any()), new_inliers
+        if not changed:
+            break
+    if int(inliers.sum()) < 8:
+        raise DegenerateGeometryError(f"pts1, pts2: only {int(inliers.sum())} of {n} matches fit one F "
+                                      f"(need 8); too many outliers or threshold {threshold:.3g} px too small")
+    if check_planar and homography_explains_matches(p1[inliers], p2[inliers], threshold=max(threshold, 1.0)):
+        raise DegenerateGeometryError(
+            "pts1, pts2: a single homography explains the matches (planar scene or pure rotation without "
+            "translation), so F is not determined; pass check_planar=False to get an arbitrary F anyway")
+    return FundamentalEstimate(best_F.to(pts1.dtype), inliers)
+
+
+def _ransac_iterations(inlier_ratio: float, confidence: float, sample_size: int = 8) -> int:
+    if inlier_ratio <= 0:
+        return 10**9
+    p_good = inlier_ratio**sample_size
+    if p_good >= 1.0:
+        return 1
+    return int(math.ceil(math.log(1 - confidence) / math.log1p(-p_good)))
