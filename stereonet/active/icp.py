@@ -1,0 +1,244 @@
+"""Aligning range scans: ICP (point-to-point and point-to-plane), pose errors, and merging into one cloud.
+
+All maths is vectorized in torch (float64); nearest neighbours come from ``scipy.spatial.cKDTree``.
+
+* :func:`best_rigid_transform` — the closed-form least-squares rotation + translation between matched points
+  (Kabsch/Umeyama via SVD, reflection-corrected).
+* :func:`point_to_plane_step` — one linearised Gauss-Newton step minimising ``sum (n_i . (R p_i + t - q_i))^2``
+  for small rotations (Chen & Medioni / Low 2004).
+* :func:`icp` — alternates nearest-neighbour matching (with a distance gate) and one of the two solvers,
+  from an initial guess. Raises :class:`~stereonet.checks.StereoInputError` when the scans do not overlap
+  (too few source points have a target neighbour within the gate) instead of returning a meaningless pose.
+* :func:`merge_scans` — transform every scan into the reference frame, concatenate, voxel-downsample.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from stereonet.checks import StereoInputError, check_finite, check_shape
+
+_F64 = torch.float64
+
+
+def _check_points(x: object, name: str) -> torch.Tensor:
+    if not isinstance(x, torch.Tensor):
+        raise TypeError(f"{name}: expected a torch.Tensor of shape (N, 3), got {type(x).__name__}")
+    check_shape(x, ["N", "3"], name)
+    check_finite(x, name)
+    return x.to(_F64)
+
+
+def rotation_matrix(axis_angle: Sequence[float] | torch.Tensor) -> torch.Tensor:
+    """Rodrigues: rotation :math:`(3, 3)` of an axis-angle vector :math:`(3,)` (radians)."""
+    w = torch.as_tensor(axis_angle, dtype=_F64).reshape(3)
+    theta = w.norm()
+    if float(theta) < 1e-15:
+        return torch.eye(3, dtype=_F64)
+    k = w / theta
+    Kx = torch.zeros(3, 3, dtype=_F64)
+    Kx[0, 1], Kx[0, 2], Kx[1, 2] = -k[2], k[1], -k[0]
+    Kx = Kx - Kx.T
+    return torch.eye(3, dtype=_F64) + torch.sin(theta) * Kx + (1 - torch.cos(theta)) * Kx @ Kx
+
+
+def rotation_error_deg(R_est: torch.Tensor, R_gt: torch.Tensor) -> float:
+    """Angle (degrees) of the rotation ``R_est^T R_gt``."""
+    c = (torch.trace(R_est.to(_F64).T @ R_gt.to(_F64)) - 1) / 2
+    return math.degrees(math.acos(float(c.clamp(-1, 1))))
+
+
+def best_rigid_transform(src: torch.Tensor, dst: torch.Tensor,
+                         weights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Least-squares ``R, t`` with ``dst ~ R src + t`` for matched points :math:`(N, 3)` (N >= 3, not collinear).
+
+    Kabsch: SVD of the weighted cross-covariance, with the sign fix that keeps ``det R = +1``.
+    """
+    w = torch.ones(src.shape[0], dtype=src.dtype) if weights is None else weights.to(src.dtype)
+    w = w / w.sum()
+    mu_s, mu_d = w @ src, w @ dst
+    H = (src - mu_s).T @ ((dst - mu_d) * w[:, None])  # 3x3
+    U, _, Vt = torch.linalg.svd(H)
+    d = torch.sign(torch.linalg.det(Vt.T @ U.T))
+    D = torch.diag(torch.stack([torch.ones_like(d), torch.ones_like(d), d]))
+    R = Vt.T @ D @ U.T
+    return R, mu_d - R @ mu_s
+
+
+def point_to_plane_step(src: torch.Tensor, dst: torch.Tensor, dst_normals: torch.Tensor,
+                        weights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """One linearised point-to-plane step: ``R, t`` minimising ``sum w (n . (R p + t - q))^2`` for small angles.
+
+    With ``R ~ I + [w]x`` the residual is ``(p x n) . w + n . t + n . (p - q)``: a 6x6 normal-equation solve.
+    The small-angle solution is re-orthonormalised through Rodrigues.
+    """
+    w = torch.ones(src.shape[0], dtype=src.dtype) if weights is None else weights.to(src.dtype)
+    A = torch.cat([torch.linalg.cross(src, dst_normals), dst_normals], dim=1)  # Nx6
+    b = -((src - dst) * dst_normals).sum(-1)  # N
+    AtA = A.T @ (A * w[:, None])
+    Atb = A.T @ (b * w)
+    x = torch.linalg.solve(AtA + 1e-12 * torch.eye(6, dtype=src.dtype), Atb)
+    return rotation_matrix(x[:3]), x[3:]
+
+
+def estimate_normals(points: torch.Tensor, k: int = 12, viewpoint: Sequence[float] | None = (0.0, 0.0, 0.0),
+                     tree: cKDTree | None = None) -> torch.Tensor:
+    """Unit normals :math:`(N, 3)` by PCA of each point's ``k`` nearest neighbours (smallest-eigenvalue axis),
+    oriented toward ``viewpoint`` (the scanner centre in the points' frame) when given."""
+    points = _check_points(points, "points")
+    n = points.shape[0]
+    if n < 3:
+        raise StereoInputError(f"points: expected at least 3 points to estimate normals, got {n}")
+    k = min(k, n)
+    tree = cKDTree(points.numpy()) if tree is None else tree
+    _, idx = tree.query(points.numpy(), k=k)
+    nb = points[torch.from_numpy(np.asarray(idx)).long()]  # NxKx3
+    c = nb - nb.mean(dim=1, keepdim=True)
+    cov = c.transpose(1, 2) @ c  # Nx3x3
+    _, vecs = torch.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    if viewpoint is not None:
+        vp = torch.as_tensor(viewpoint, dtype=_F64)
+        flip = ((vp - points) * normals).sum(-1) < 0
+        normals = torch.where(flip[:, None], -normals, normals)
+    return normals
+
+
+@dataclass
+class ICPResult:
+    """``R`` :math:`(3, 3)`, ``t`` :math:`(3,)` mapping source into target (``target ~ R source + t``);
+    ``rmse`` of the final inlier correspondences (point-to-point distance, or point-to-plane distance for that
+    method), ``overlap`` = fraction of source points with a target neighbour within the gate, ``iterations``,
+    ``converged``."""
+
+    R: torch.Tensor
+    t: torch.Tensor
+    rmse: float
+    overlap: float
+    iterations: int
+    converged: bool
+
+    def transform(self, points: torch.Tensor) -> torch.Tensor:
+        return points.to(_F64) @ self.R.T + self.t
+
+
+def icp(source: torch.Tensor, target: torch.Tensor, init_R: torch.Tensor | None = None,
+        init_t: torch.Tensor | None = None, method: str = "point_to_plane", max_iterations: int = 60,
+        max_distance: float = 0.1, tolerance: float = 1e-7, min_overlap: float = 0.1,
+        target_normals: torch.Tensor | None = None, trim: float = 0.9, normal_k: int = 12) -> ICPResult:
+    """Iterative closest point: find ``R, t`` with ``target ~ R source + t``.
+
+    Args:
+        source: :math:`(N, 3)` points to move; target: :math:`(M, 3)` fixed points.
+        init_R, init_t: initial guess (identity / zero when omitted), e.g. from odometry or feature matches.
+        method: ``"point_to_point"`` (Besl & McKay, closed-form Kabsch each step) or ``"point_to_plane"``
+            (Chen & Medioni, linearised; converges in fewer steps on smooth surfaces).
+        max_distance: correspondence gate (scene units) — pairs farther apart are ignored.
+        tolerance: stop when the pose update moves points by less than this (RMS, scene units).
+        min_overlap: fewer gated matches than this fraction of source points (at the start or the end)
+            means the scans do not overlap under the guess: raises instead of returning a meaningless pose.
+        target_normals: :math:`(M, 3)` normals for point-to-plane (estimated by PCA when omitted).
+        trim: keep this fraction of the gated pairs with the smallest distances (robust to partial overlap).
+
+    Raises:
+        StereoInputError: bad shapes, unknown method, or no overlap.
+    """
+    src = _check_points(source, "source")
+    dst = _check_points(target, "target")
+    methods = ("point_to_point", "point_to_plane")
+    if method not in methods:
+        raise StereoInputError(f"method: expected one of {methods}, got {method!r}")
+    if src.shape[0] < 3 or dst.shape[0] < 3:
+        raise StereoInputError(f"source/target: expected at least 3 points each, got {src.shape[0]} and {dst.shape[0]}")
+    if not 0 < trim <= 1:
+        raise StereoInputError(f"trim: expected 0 < trim <= 1, got {trim}")
+    R = torch.eye(3, dtype=_F64) if init_R is None else init_R.to(_F64).clone()
+    t = torch.zeros(3, dtype=_F64) if init_t is None else init_t.to(_F64).reshape(3).clone()
+    check_shape(R, ["3", "3"], "init_R")
+    tree = cKDTree(dst.numpy())
+    if method == "point_to_plane":
+        if target_normals is None:
+            target_normals = estimate_normals(dst, k=normal_k, viewpoint=None, tree=tree)
+        nrm = _check_points(target_normals, "target_normals")
+        if nrm.shape != dst.shape:
+            raise StereoInputError(f"target_normals: expected shape {tuple(dst.shape)}, got {tuple(nrm.shape)}")
+
+    def match(moved: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        dist, idx = tree.query(moved.numpy(), k=1, distance_upper_bound=max_distance)
+        dist, idx = torch.from_numpy(dist), torch.from_numpy(idx).long()
+        keep = torch.isfinite(dist)
+        sel = keep.nonzero().flatten()
+        if trim < 1 and sel.numel() > 3:
+            n_keep = max(3, int(math.ceil(trim * sel.numel())))
+            sel = sel[torch.argsort(dist[sel])[:n_keep]]
+        return sel, idx[sel], keep.to(_F64).mean()
+
+    def no_overlap(overlap: float, when: str) -> StereoInputError:
+        return StereoInputError(
+            f"source/target: the scans do not overlap {when}: only {100 * overlap:.1f}% of source points have "
+            f"a target point within max_distance={max_distance} (min_overlap={100 * min_overlap:.0f}%); "
+            f"give a better initial pose or a larger max_distance")
+
+    converged = False
+    it = 0
+    for it in range(1, max_iterations + 1):  # noqa: B007 - the count is reported
+        moved = src @ R.T + t
+        sel, j, overlap = match(moved)
+        if float(overlap) < min_overlap or sel.numel() < 6:
+            raise no_overlap(float(overlap), "under the initial pose" if it == 1 else f"at iteration {it}")
+        if method == "point_to_point":
+            dR, dt = best_rigid_transform(moved[sel], dst[j])
+        else:
+            dR, dt = point_to_plane_step(moved[sel], dst[j], nrm[j])
+        R, t = dR @ R, dR @ t + dt
+        step = (moved[sel] @ dR.T + dt - moved[sel]).norm(dim=-1).pow(2).mean().sqrt()
+        if float(step) < tolerance:
+            converged = True
+            break
+    moved = src @ R.T + t
+    sel, j, overlap = match(moved)
+    if float(overlap) < min_overlap or sel.numel() < 3:
+        raise no_overlap(float(overlap), "after alignment")
+    diff = moved[sel] - dst[j]
+    res = (diff * nrm[j]).sum(-1) if method == "point_to_plane" else diff.norm(dim=-1)
+    return ICPResult(R, t, float(res.pow(2).mean().sqrt()), float(overlap), it, converged)
+
+
+def voxel_downsample(points: torch.Tensor, colors: torch.Tensor | None, voxel: float
+                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Average points (and colours) falling in the same cubic voxel of side ``voxel``."""
+    points = _check_points(points, "points")
+    if voxel <= 0:
+        raise StereoInputError(f"voxel: expected > 0, got {voxel}")
+    keys = torch.floor(points / voxel).to(torch.int64)
+    _, inv = torch.unique(keys, dim=0, return_inverse=True)
+    n = int(inv.max()) + 1 if inv.numel() else 0
+    count = torch.zeros(n, dtype=_F64).index_add_(0, inv, torch.ones_like(inv, dtype=_F64))
+    out = torch.zeros(n, 3, dtype=_F64).index_add_(0, inv, points) / count[:, None]
+    if colors is None:
+        return out, None
+    col = torch.zeros(n, 3, dtype=_F64).index_add_(0, inv, colors.to(_F64)) / count[:, None]
+    return out, col.round().clamp(0, 255).to(torch.uint8) if colors.dtype == torch.uint8 else col
+
+
+def merge_scans(points: Sequence[torch.Tensor], colors: Sequence[torch.Tensor] | None,
+                rotations: Sequence[torch.Tensor], translations: Sequence[torch.Tensor],
+                voxel: float | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Map scan ``i`` by ``X -> R_i X + t_i`` into the common frame, concatenate, optionally voxel-downsample.
+
+    Returns points :math:`(N, 3)` float64 and colours :math:`(N, 3)` (uint8 if given as uint8) or None.
+    """
+    if not (len(points) == len(rotations) == len(translations)) or (colors is not None and len(colors) != len(points)):
+        raise StereoInputError("points/colors/rotations/translations: expected one entry per scan each")
+    pts = torch.cat([_check_points(p, f"points[{i}]") @ R.to(_F64).T + t.to(_F64).reshape(3)
+                     for i, (p, R, t) in enumerate(zip(points, rotations, translations))])
+    col = None if colors is None else torch.cat(list(colors))
+    if voxel is not None:
+        return voxel_downsample(pts, col, voxel)
+    return pts, col

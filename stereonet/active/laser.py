@@ -1,0 +1,226 @@
+"""Laser stripe scanning: a laser sheet sweeps the scene, one camera sees the stripe, each stripe point is
+triangulated by intersecting its camera ray with the known laser plane.
+
+Pipeline (:func:`laser_scan`):
+
+1. :func:`sweep_planes` — the laser sits at ``origin`` and turns about ``axis``; at angle ``theta`` its sheet
+   contains the axis and the direction ``cos(theta) forward + sin(theta) side``.
+2. :func:`render_stripe_images` — the camera's view of each sheet: irradiance
+   ``power * exp(-angle_to_sheet^2 / 2 sigma^2) * Lambert * visible-from-laser`` on top of ambient light.
+3. :func:`stripe_peaks` — per scanline, the brightest column of the laser-on minus laser-off image, refined to
+   sub-pixel by a 3-point Gaussian fit (exact for a Gaussian profile). Rows with no stripe, a saturated peak,
+   a peak at the border or a second comparable peak (ambiguous) are invalid.
+4. :func:`~stereonet.active.triangulate.ray_plane_depth` — ray ∩ plane; grazing rays are invalid and a
+   sheet that contains the camera centre (parallel to every camera ray) gives no depth.
+5. The stripe points of all angles are written into a range image (nearest pixel, the sample closest to the
+   pixel centre wins).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from stereonet.active.render import shade
+from stereonet.active.scene import PinholeCamera, Scene, raycast, visible_from
+from stereonet.active.triangulate import plane_to_camera, ray_plane_depth
+from stereonet.checks import StereoInputError, check_image
+
+log = logging.getLogger(__name__)
+
+
+def sweep_planes(origin: Sequence[float], angles_deg: Sequence[float] | torch.Tensor,
+                 axis: Sequence[float] = (0.0, 1.0, 0.0),
+                 forward: Sequence[float] = (0.0, 0.0, 1.0)) -> tuple[torch.Tensor, torch.Tensor]:
+    """World planes ``n . X = c`` of a laser sheet at ``origin`` turning about ``axis``.
+
+    At angle ``theta`` the sheet contains ``axis`` and ``cos(theta) forward + sin(theta) (axis x forward)``.
+    Returns normals :math:`(A, 3)` (unit) and offsets :math:`(A,)` for ``A = len(angles_deg)``.
+    """
+    o = torch.as_tensor(origin, dtype=torch.float64)
+    a = torch.as_tensor(axis, dtype=torch.float64)
+    a = a / a.norm()
+    f = torch.as_tensor(forward, dtype=torch.float64)
+    f = f - (f @ a) * a
+    if float(f.norm()) < 1e-9:
+        raise StereoInputError("forward: expected a direction not parallel to axis")
+    f = f / f.norm()
+    side = torch.linalg.cross(a, f)
+    th = torch.deg2rad(torch.as_tensor(angles_deg, dtype=torch.float64).reshape(-1))
+    in_sheet = torch.cos(th)[:, None] * f + torch.sin(th)[:, None] * side  # Ax3
+    normals = torch.linalg.cross(a.expand_as(in_sheet), in_sheet)
+    normals = normals / normals.norm(dim=-1, keepdim=True)
+    return normals, normals @ o
+
+
+@dataclass
+class StripeImages:
+    """Stripe images of a sweep: ``on`` :math:`(A, 1, H, W)` laser on, ``off`` :math:`(1, 1, H, W)` laser off
+    (float32 [0, 1], grey), and the camera's GT ``depth``/``hit`` :math:`(H, W)` for evaluation."""
+
+    on: torch.Tensor
+    off: torch.Tensor
+    depth: torch.Tensor
+    hit: torch.Tensor
+
+
+def render_stripe_images(scene: Scene, camera: PinholeCamera, origin: Sequence[float], normals: torch.Tensor,
+                         offsets: torch.Tensor, power: float = 1.5, sigma_deg: float = 0.12,
+                         ambient: float = 0.15, noise_std: float = 0.005, seed: int = 0) -> StripeImages:
+    """Render the camera's view of each laser sheet (normals :math:`(A, 3)`, offsets :math:`(A,)`, world frame).
+
+    The camera rays and the shadow test toward the laser do not depend on the sheet angle, so they are cast
+    once; each sheet only changes the Gaussian profile across it (``sigma_deg`` = angular half-thickness).
+    """
+    src = torch.as_tensor(origin, dtype=torch.float64)
+    o, d = camera.rays(camera.pixel_grid(1)[:, :, 0])
+    hits = raycast(scene, o, d)
+    vis = visible_from(scene, hits.points, hits.normals, src) & hits.hit
+    to_src = src - hits.points
+    dist = to_src.norm(dim=-1).clamp_min(1e-12)
+    lambert = ((hits.normals * to_src).sum(-1) / dist).clamp_min(0)
+    base = shade(scene, hits, ambient, None, 0.0, ()).mean(-1)  # HxW grey radiance without the laser
+    albedo = hits.albedo.mean(-1)
+    g = torch.Generator().manual_seed(int(seed))
+
+    def sensor(x: torch.Tensor) -> torch.Tensor:
+        return (x + noise_std * torch.randn(x.shape, generator=g, dtype=x.dtype)).clamp(0, 1).float()
+
+    sigma = math.radians(sigma_deg)
+    on = []
+    for n, c in zip(normals.to(torch.float64), offsets.to(torch.float64)):
+        ang = ((hits.points @ n) - c) / dist  # sine of the angle between the sheet and the laser->point ray
+        irr = power * torch.exp(-0.5 * (ang / sigma) ** 2) * lambert * vis
+        on.append(sensor(base + albedo * irr))
+    depth = torch.where(hits.hit, hits.t, torch.zeros_like(hits.t))
+    return StripeImages(torch.stack(on)[:, None], sensor(base)[None, None], depth, hits.hit)
+
+
+def stripe_peaks(image: torch.Tensor, min_peak: float = 0.05, saturation: float = 0.99,
+                 background: torch.Tensor | None = None, exclusion: int = 4,
+                 ambiguity_ratio: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sub-pixel column of the laser stripe on every scanline.
+
+    Args:
+        image: :math:`(B, 1, H, W)` stripe images in [0, 1].
+        min_peak: rows whose stripe signal (after background subtraction) stays below this have no stripe.
+        saturation: a peak at or above this raw intensity is clipped, its shape unknown -> invalid.
+        background: optional laser-off image :math:`(B or 1, 1, H, W)` subtracted first.
+        exclusion: half-width (px) around the peak ignored when looking for a competing second peak.
+        ambiguity_ratio: a second peak above this fraction of the first makes the row ambiguous -> invalid.
+
+    Returns:
+        columns :math:`(B, 1, H)` float (sub-pixel, pixel centres at integers; 0 where invalid) and
+        valid :math:`(B, 1, H)` bool. The 3-point fit ``delta = (ln a - ln c) / (2 (ln a - 2 ln b + ln c))`` of
+        a Gaussian through the peak ``b`` and its neighbours ``a, c`` is exact for Gaussian stripes.
+    """
+    image = check_image(image, "image", channels=(1,))
+    signal = image if background is None else image - check_image(background, "background", channels=(1,))
+    b, _, h, w = image.shape
+    if w < 3:
+        raise StereoInputError(f"image: expected width >= 3 for a 3-point peak fit, got shape {tuple(image.shape)}")
+    peak, col = signal.max(dim=-1)  # Bx1xH
+    raw_peak = torch.gather(image, -1, col[..., None])[..., 0]
+    inner = (col > 0) & (col < w - 1)
+    cm, cp = (col - 1).clamp(0, w - 1), (col + 1).clamp(0, w - 1)
+    s_m = torch.gather(signal, -1, cm[..., None])[..., 0]
+    s_p = torch.gather(signal, -1, cp[..., None])[..., 0]
+    tiny = 1e-6
+    la, lb, lc = (torch.log(x.clamp_min(tiny)) for x in (s_m, peak, s_p))
+    den = la - 2 * lb + lc
+    gauss_ok = (s_m > tiny) & (s_p > tiny) & (den < -1e-9)
+    par_den = s_m - 2 * peak + s_p
+    delta = torch.where(gauss_ok, 0.5 * (la - lc) / torch.where(gauss_ok, den, -torch.ones_like(den)),
+                        0.5 * (s_m - s_p) / torch.where(par_den < -1e-9, par_den, -torch.ones_like(par_den)))
+    # a competing peak outside the exclusion window means two stripe candidates on one scanline
+    cols = torch.arange(w, device=image.device).view(1, 1, 1, w)
+    far = (cols - col[..., None]).abs() > exclusion
+    second = torch.where(far, signal, torch.full_like(signal, -math.inf)).max(dim=-1).values
+    valid = ((peak >= min_peak) & (raw_peak < saturation) & inner & (delta.abs() <= 0.5)
+             & (second < ambiguity_ratio * peak))
+    columns = torch.where(valid, col.to(image.dtype) + delta, torch.zeros_like(peak))
+    return columns, valid
+
+
+@dataclass
+class LaserScan:
+    """Result of :func:`laser_scan`.
+
+    ``range_image`` :math:`(H, W)` depth (0 where invalid), ``valid`` :math:`(H, W)`; ``points`` :math:`(N, 3)`
+    camera-frame stripe points; ``uv`` :math:`(N, 2)` their sub-pixel image positions; ``gt_depth`` :math:`(N,)`
+    the renderer's depth along the same sub-pixel rays; ``depth_map_gt`` :math:`(H, W)` the GT depth map.
+    """
+
+    range_image: torch.Tensor
+    valid: torch.Tensor
+    points: torch.Tensor
+    uv: torch.Tensor
+    gt_depth: torch.Tensor
+    depth_map_gt: torch.Tensor
+    stripes: StripeImages
+
+    def errors(self) -> dict[str, float]:
+        """Median / 95th-percentile absolute depth error of the stripe points and of the range image
+        (against the GT depth map at the same pixel), plus the range-image density (% of hit pixels)."""
+        e_pts = (self.points[:, 2] - self.gt_depth).abs()
+        m = self.valid & (self.depth_map_gt > 0)
+        e_img = (self.range_image - self.depth_map_gt)[m].abs()
+        q = lambda e, p: float(torch.quantile(e, p)) if e.numel() else math.nan
+        return {"points": int(e_pts.numel()), "median_abs_err": q(e_pts, 0.5), "p95_abs_err": q(e_pts, 0.95),
+                "range_image_median_abs_err": q(e_img, 0.5), "range_image_p95_abs_err": q(e_img, 0.95),
+                "density": 100.0 * float(m.sum()) / max(1, int((self.depth_map_gt > 0).sum()))}
+
+
+def triangulate_stripes(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeCamera,
+                        normals_world: torch.Tensor, offsets_world: torch.Tensor,
+                        min_angle_deg: float = 2.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Triangulate stripe columns :math:`(A, 1, H)` of ``A`` laser sheets (world planes :math:`(A, 3)`, :math:`(A,)`).
+
+    Returns camera-frame points :math:`(A, H, 3)`, their pixel coordinates :math:`(A, H, 2)` and valid
+    :math:`(A, H)`. Sheets containing the camera centre are logged and give no points.
+    """
+    n_c, c_c = plane_to_camera(normals_world, offsets_world, camera)  # Ax3, A
+    a, _, h = columns.shape
+    rows = torch.arange(h, dtype=torch.float64).expand(a, h)
+    uv = torch.stack([columns[:, 0].to(torch.float64), rows], dim=-1)  # AxHx2
+    through = c_c.abs() < 1e-9
+    if bool(through.any()):
+        log.warning("laser sheets %s contain the camera centre: no depth from them",
+                    through.nonzero().flatten().tolist())
+    depth, ok = ray_plane_depth(camera.K, uv, n_c[:, None, :].expand(a, h, 3), c_c[:, None].expand(a, h),
+                                min_angle_deg=min_angle_deg, degenerate="invalid")
+    uv1 = torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1)
+    pts = (uv1 @ torch.linalg.inv(camera.K).T) * depth[..., None]
+    return pts, uv, ok & valid[:, 0]
+
+
+def laser_scan(scene: Scene, camera: PinholeCamera, origin: Sequence[float], angles_deg: Sequence[float],
+               axis: Sequence[float] = (0.0, 1.0, 0.0), forward: Sequence[float] = (0.0, 0.0, 1.0),
+               min_angle_deg: float = 2.0, seed: int = 0, **render_options) -> LaserScan:
+    """Sweep a laser sheet over ``scene`` and build ``camera``'s range image (see module doc)."""
+    normals, offsets = sweep_planes(origin, angles_deg, axis, forward)
+    stripes = render_stripe_images(scene, camera, origin, normals, offsets, seed=seed, **render_options)
+    cols, ok = stripe_peaks(stripes.on, background=stripes.off)
+    pts, uv, ok = triangulate_stripes(cols, ok, camera, normals, offsets, min_angle_deg)
+    pts, uv = pts[ok], uv[ok]  # Nx3, Nx2
+    # GT along the same sub-pixel rays (exact evaluation of the triangulation)
+    o, d = camera.rays(uv)
+    gt = raycast(scene, o, d, shade=False)
+    gt_depth = torch.where(gt.hit, gt.t, torch.zeros_like(gt.t))
+    h, w = camera.height, camera.width
+    range_image = torch.zeros(h, w, dtype=torch.float64)
+    valid = torch.zeros(h, w, dtype=torch.bool)
+    if pts.shape[0]:
+        px = uv.round().long()
+        off = (uv - px).norm(dim=-1)
+        inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        idx = (px[:, 1] * w + px[:, 0])[inside]
+        best = torch.full((h * w,), math.inf, dtype=torch.float64).scatter_reduce(0, idx, off[inside], "amin")
+        win = off[inside] == best[idx]  # per pixel, the stripe sample closest to the pixel centre
+        range_image.view(-1)[idx[win]] = pts[inside][win, 2]
+        valid.view(-1)[idx[win]] = True
+    return LaserScan(range_image, valid, pts, uv, gt_depth, stripes.depth, stripes)
