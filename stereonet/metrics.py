@@ -78,23 +78,43 @@ def _inputs(pred, gt, gt_valid, pred_valid=None, mask=None):
 
 
 def _reduce(values: torch.Tensor, select: torch.Tensor, reduction: str) -> float:
-    """Mean of ``values`` over ``select`` (both (B, 1, H, W)), pooled or per image."""
+    """Mean of ``values`` over ``select`` (both (B, 1, H, W); bool values count as 0/1), pooled or per image.
+
+    Masked sums instead of boolean indexing: no gather copies, and ``values`` may hold inf/NaN outside
+    ``select``.
+    """
+    if reduction not in ("pixel", "image"):
+        raise StereoInputError(f"reduction: expected 'pixel' or 'image', got {reduction!r}")
+    zero = torch.zeros((), dtype=torch.float64)
+    num = torch.where(select, values.to(torch.float64), zero).sum(dim=(1, 2, 3))  # B
+    den = select.sum(dim=(1, 2, 3))  # B
     if reduction == "pixel":
-        n = int(select.sum())
-        return float(values[select].sum() / n) if n else math.nan
-    if reduction == "image":
-        per_image = []
-        for v, s in zip(values, select):
-            if bool(s.any()):
-                per_image.append(float(v[s].mean()))
-        return float(np.mean(per_image)) if per_image else math.nan
-    raise StereoInputError(f"reduction: expected 'pixel' or 'image', got {reduction!r}")
+        total = int(den.sum())
+        return float(num.sum() / total) if total else math.nan
+    ok = den > 0
+    return float((num[ok] / den[ok]).mean()) if bool(ok.any()) else math.nan
+
+
+def _percent(flags: torch.Tensor, select: torch.Tensor, reduction: str) -> float:
+    value = _reduce(flags, select, reduction)
+    return value * 100.0 if not math.isnan(value) else value
 
 
 def _error_with_misses(pr, gt, pv) -> torch.Tensor:
     """|pred - gt| with +inf where the method gives no answer (counts as an error at every threshold)."""
     err = (pr - gt).abs()
     return torch.where(pv, err, torch.full_like(err, math.inf))
+
+
+def _d1_outliers(err_with_misses: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    # KITTI devkit: E > 3 px and E / |D_gt| > 5 %; inf (missing prediction) satisfies both
+    return (err_with_misses > 3.0) & (err_with_misses > 0.05 * gt.abs())
+
+
+def _check_tau(tau: float) -> float:
+    if isinstance(tau, bool) or not isinstance(tau, int | float) or not tau >= 0:
+        raise StereoInputError(f"tau: expected a threshold >= 0 pixels, got {tau!r}")
+    return float(tau)
 
 
 @torch.no_grad()
@@ -118,11 +138,9 @@ def bad_pixel_rate(pred, gt, gt_valid=None, tau: float = 1.0, pred_valid=None, m
 
     Pixels without a prediction count as bad. Any ``tau >= 0``. Do not use as a loss.
     """
-    if not tau >= 0:
-        raise StereoInputError(f"tau: expected a threshold >= 0 pixels, got {tau}")
+    tau = _check_tau(tau)
     pr, gt_t, gv, pv, m = _inputs(pred, gt, gt_valid, pred_valid, mask)
-    bad = (_error_with_misses(pr, gt_t, pv) > tau).double() * 100.0
-    return _reduce(bad, gv & m, reduction)
+    return _percent(_error_with_misses(pr, gt_t, pv) > tau, gv & m, reduction)
 
 
 @torch.no_grad()
@@ -133,9 +151,7 @@ def d1_kitti(pred, gt, gt_valid=None, pred_valid=None, mask=None, reduction: str
     CVPR 2015). Pixels without a prediction count as outliers. Do not use as a loss.
     """
     pr, gt_t, gv, pv, m = _inputs(pred, gt, gt_valid, pred_valid, mask)
-    err = _error_with_misses(pr, gt_t, pv)
-    outlier = (err > 3.0) & (err > 0.05 * gt_t.abs())  # inf > x is True for missing predictions
-    return _reduce(outlier.double() * 100.0, gv & m, reduction)
+    return _percent(_d1_outliers(_error_with_misses(pr, gt_t, pv), gt_t), gv & m, reduction)
 
 
 @torch.no_grad()
@@ -148,7 +164,7 @@ def density(pred_valid, gt_valid=None, mask=None, reduction: str = "pixel") -> f
     for name, t in (("gt_valid", gv), ("mask", m)):
         if t.shape != pv.shape:
             raise StereoInputError(f"{name}: expected shape {tuple(pv.shape)} like pred_valid, got {tuple(t.shape)}")
-    return _reduce(pv.double() * 100.0, gv & m, reduction)
+    return _percent(pv, gv & m, reduction)
 
 
 @torch.no_grad()
@@ -216,13 +232,18 @@ def evaluate(pred, gt, gt_valid=None, pred_valid=None, occlusion=None, reduction
             raise StereoInputError(f"occlusion: expected shape {tuple(gt_t.shape)} like gt, got {tuple(occ.shape)}")
         masks["_noc"] = ~occ
         masks["_occ"] = occ
+    err = (pr - gt_t).abs()  # Bx1xHxW
+    err_miss = torch.where(pv, err, torch.full_like(err, math.inf))
+    outlier = _d1_outliers(err_miss, gt_t)
+    bad = {tau: err_miss > tau for tau in (1, 2, 4)}
     out: dict[str, float] = {}
     for suffix, m in masks.items():
-        out["epe" + suffix] = end_point_error(pr, gt_t, gv, pv, m, reduction)
-        for tau in (1, 2, 4):
-            out[f"bad{tau}{suffix}"] = bad_pixel_rate(pr, gt_t, gv, float(tau), pv, m, reduction)
-        out["d1" + suffix] = d1_kitti(pr, gt_t, gv, pv, m, reduction)
-        out["density" + suffix] = density(pv, gv, m, reduction)
+        sel = gv if m is None else gv & m
+        out["epe" + suffix] = _reduce(err, sel & pv, reduction)
+        for tau, flags in bad.items():
+            out[f"bad{tau}{suffix}"] = _percent(flags, sel, reduction)
+        out["d1" + suffix] = _percent(outlier, sel, reduction)
+        out["density" + suffix] = _percent(pv, sel, reduction)
     if see:
         out["see"] = soft_edge_error(pr, gt_t, gv, pred_valid=pv, reduction=reduction)
     return out
