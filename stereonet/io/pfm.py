@@ -66,6 +66,8 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
         raise fail(p, f"corrupt PFM header: expected a non-zero finite scale (its sign is the byte order), got {scale}")
     channels = 3 if magic == b"PF" else 1
     expected = width * height * channels * 4
+    if data[start - 1:start + 1] == b"\r\n" and len(data) - start - 1 == expected:
+        start += 1  # a header written with Windows line ends
     got = len(data) - start
     if got < expected:
         raise fail(p, f"truncated, expected {expected} bytes of data, got {got}")

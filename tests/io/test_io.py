@@ -158,6 +158,19 @@ def test_corrupt_png_crc_and_garbage(tmp_path):
         read_image(tmp_path / "junk.png")
 
 
+def test_pfm_windows_line_ends(tmp_path):
+    (tmp_path / "w.pfm").write_bytes(b"Pf\r\n2 1\r\n-1.0\r\n" + struct.pack("<2f", 1.5, 2.5))
+    np.testing.assert_array_equal(read_pfm(tmp_path / "w.pfm"), [[1.5, 2.5]])
+
+
+def test_truncated_jpeg(tmp_path):
+    write_image(tmp_path / "photo.jpg", torch.rand(3, 32, 32))
+    data = (tmp_path / "photo.jpg").read_bytes()
+    (tmp_path / "photo.jpg").write_bytes(data[: len(data) // 2])
+    with pytest.raises(FileFormatError, match=r"photo\.jpg: truncated JPEG"):
+        read_image(tmp_path / "photo.jpg")
+
+
 def test_truncated_pgm(tmp_path):
     write_image(tmp_path / "d.pgm", np.zeros((10, 10), np.uint8))
     data = (tmp_path / "d.pgm").read_bytes()
