@@ -27,7 +27,6 @@ import numpy as np
 
 from stereonet.cli.common import USER_ERRORS, OneLineParser, fail
 from stereonet.cli.eval import (
-    SHARED_DATA,
     Evaluation,
     PairResult,
     expand_data_specs,
@@ -236,7 +235,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         methods = parse_methods(args.methods)
         if args.synthetic < 0:
             raise ValueError(f"--synthetic: expected a count >= 0, got {args.synthetic}")
-        real = [] if args.no_real or not SHARED_DATA.is_dir() else expand_data_specs("real")
+        from stereonet.data import shared_data_dir
+
+        real = [] if args.no_real or shared_data_dir() is None else expand_data_specs("real")
         synthetic = f"synthetic:{args.synthetic}" if args.synthetic else None
         specs = real + ([synthetic] if synthetic else [])
         if not specs:

@@ -43,6 +43,27 @@ def fail(prog: str, message: object, code: int = 2) -> int:
     return code
 
 
+def weights_available(name: str) -> bool:
+    """Whether matcher ``name`` can run without an explicit checkpoint (always True when it needs none).
+
+    Asks ``stereonet.models.registered.weights_available`` when the learned family provides it, else looks
+    for the shipped file of the matcher's network (``siamese-sgm`` uses ``siamese``'s weights).
+    """
+    from stereonet import matchers
+
+    if not matchers.spec(name).needs_weights:
+        return True
+    try:
+        from stereonet.models import registered
+        from stereonet.models.weights import default_weights_path
+    except ImportError:
+        return False
+    probe = getattr(registered, "weights_available", None)
+    if probe is not None:
+        return bool(probe(name))
+    return default_weights_path(name.split("-")[0]).is_file()
+
+
 def rss_bytes() -> int:
     """Current resident set size of this process in bytes (0 where /proc is missing)."""
     try:

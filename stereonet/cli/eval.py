@@ -43,20 +43,23 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stereonet.cli.common import USER_ERRORS, OneLineParser, PeakMemory, Stopwatch, fail
+from stereonet.cli.common import USER_ERRORS, OneLineParser, PeakMemory, Stopwatch, fail, weights_available
 from stereonet.types import StereoOutput
 
 PROG = "eval.py"
 METRICS = ("epe", "bad1", "bad2", "bad4", "d1", "density")
-SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 # Dataset kinds in ../shared/data that ``real`` expands to, in table order.
 REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2014", "kitti2012", "kitti2015")
 
 
 # ----------------------------------------------------------------------------------------------- parsing
 
-def parse_methods(text: str) -> list[str]:
-    """``"all"`` or a comma-separated list of registered names -> names (unknown name: StereoInputError)."""
+def parse_methods(text: str, skipped: list[str] | None = None) -> list[str]:
+    """``"all"`` or a comma-separated list of registered names -> names.
+
+    ``all`` leaves out learned methods whose weights are missing (their names are appended to ``skipped``);
+    naming such a method explicitly, or an unknown name, raises a ValueError.
+    """
     from stereonet import matchers
 
     names = [n.strip() for n in text.split(",") if n.strip()]
@@ -64,22 +67,33 @@ def parse_methods(text: str) -> list[str]:
         raise ValueError("--methods: expected a comma-separated list of method names or 'all', got nothing")
     out: list[str] = []
     for n in names:
-        for m in (matchers.available() if n == "all" else [matchers.spec(n).name]):
-            if m not in out:
-                out.append(m)
+        if n == "all":
+            chosen = [m for m in matchers.available() if weights_available(m)]
+            if skipped is not None:
+                skipped += [m for m in matchers.available() if m not in chosen and m not in skipped]
+        else:
+            chosen = [matchers.spec(n).name]
+            if not weights_available(n):
+                raise FileNotFoundError(f"--methods: {n} needs trained weights and they are missing "
+                                        "(see weights/README.md, or train them with train.py)")
+        out += [m for m in chosen if m not in out]
     return out
 
 
 def expand_data_specs(text: str, shared: Path | None = None) -> list[str]:
     """Split ``SPEC[,SPEC...]`` and expand ``real`` into one spec per dataset folder in ../shared/data."""
-    shared = SHARED_DATA if shared is None else shared
     specs: list[str] = []
     for s in (s.strip() for s in text.split(",")):
         if not s:
             continue
         if s == "real":
-            if not shared.is_dir():
-                raise FileNotFoundError(f"--data real: the shared real data folder {shared} does not exist")
+            if shared is None:
+                from stereonet.data import shared_data_dir
+
+                shared = shared_data_dir()
+            if shared is None or not shared.is_dir():
+                raise FileNotFoundError(f"--data real: no shared real data folder ({shared or '../shared/data'}; "
+                                        "set STEREONET_SHARED_DATA)")
             specs += [f"{k}:{shared / k}" for k in REAL_KINDS if (shared / k).is_dir()]
         else:
             specs.append(s)
@@ -317,8 +331,14 @@ def format_table(rows: Sequence[dict]) -> str:
     out.append(" ".join("-" * w for w in widths))
     for cells in lines:
         out.append(" ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))))
-    notes = [f"! {r['method']} on {r['dataset']}: failed on {r['failed']} pair(s): {r.get('error', '')}"
-             for r in rows if r.get("failed")]
+    notes = []
+    for m in dict.fromkeys(r["method"] for r in rows if r.get("failed")):
+        bad = [r for r in rows if r["method"] == m and r.get("failed")]
+        where = ", ".join(f"{r['dataset']} ({r['failed']})" for r in bad)
+        notes.append(f"! {m} failed on {where}: {bad[0].get('error', '')}")
+    skipped = [f"{r['method']} on {r['dataset']} ({r['skipped']})" for r in rows if r.get("skipped")]
+    if skipped:
+        notes.append("pairs skipped (time budget): " + ", ".join(skipped))
     legend = ("EPE/SEE in px over predicted pixels; bad-t = % of GT pixels with error > t px, D1 = KITTI "
               "(>3 px and >5 %), both counting missing predictions as errors; dens = % of GT pixels predicted; "
               "-noc = non-occluded pixels only; per-pair means; s/pair and MiB = matcher call only.")
@@ -348,7 +368,7 @@ def pair_panel(item: dict, outs: dict[str, StereoOutput | None], max_disp: int, 
         d = out.disparity[0, 0].float().cpu().numpy()
         v = out.valid[0, 0].cpu().numpy()
         couples.append(((viz.colorize_disparity(d, max_disp, v), m),
-                        (viz.error_map(np.where(v, d, 0.0), gt, gt_valid), f"{m} error")))
+                        (viz.error_map(np.where(v, d, 0.0), gt, gt_valid, pred_valid=v), f"{m} error")))
     rows = []
     for i in range(0, len(couples), per_row):
         tiles = [t for c in couples[i:i + per_row] for t in c]
@@ -366,32 +386,14 @@ def _plot_pair(path: Path, item: dict, outs: dict[str, StereoOutput | None], max
 
 
 def plot_bad2(rows: Sequence[dict], path: Path, key: str = "bad2") -> None:
-    """Grouped bar chart of ``key`` (bad-2 by default) per method, one group per dataset."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from stereonet.io.atomic import atomic_path
+    """Grouped bar chart of ``key`` (bad-2 by default) per method, one bar per dataset (:func:`viz.plot_bars`)."""
+    from stereonet import viz
 
     methods = list(dict.fromkeys(r["method"] for r in rows))
-    datasets = list(dict.fromkeys(r["dataset"] for r in rows))
     value = {(r["method"], r["dataset"]): r.get(key) for r in rows}
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.5 * len(methods) * max(1, len(datasets)) + 2), 4))
-    width = 0.8 / max(1, len(datasets))
-    x = np.arange(len(methods))
-    for j, d in enumerate(datasets):
-        ys = [value.get((m, d)) for m in methods]
-        ax.bar(x + (j - (len(datasets) - 1) / 2) * width, [np.nan if y is None else y for y in ys], width, label=d)
-    ax.set_xticks(x)
-    ax.set_xticklabels(methods, rotation=45, ha="right")
-    ax.set_ylabel(f"{key} (% of GT pixels, lower is better)")
-    ax.set_title(f"{key} per method")
-    ax.legend(fontsize="small")
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    series = {d: [value.get((m, d)) for m in methods] for d in dict.fromkeys(r["dataset"] for r in rows)}
+    viz.plot_bars(path, methods, series, ylabel=f"{key} (% of GT pixels, lower is better)",
+                  title=f"{key} per method")
 
 
 def write_json(path: Path, rows: Sequence[dict]) -> None:
@@ -420,7 +422,10 @@ def build_parser() -> OneLineParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        methods = parse_methods(args.methods)
+        skipped: list[str] = []
+        methods = parse_methods(args.methods, skipped)
+        if skipped:
+            print(f"{PROG}: note: skipping {', '.join(skipped)} (trained weights missing)", file=sys.stderr)
         specs = expand_data_specs(args.data)
         shard = parse_shard(args.shard)
         if args.max_disp is not None and args.max_disp <= 0:

@@ -16,9 +16,10 @@ processed with a progress bar into ``OUT/<left file stem>/``. Everything is writ
 beside OUT and renamed to OUT at the end, so an interrupted or failed run leaves nothing half-written. In a
 batch, a pair that fails is reported (one line) and left out; the others are kept and the exit code is 1.
 
-``--max-disp`` defaults to the calibration's ``ndisp`` when the pair is used as given, else to the 98th
-percentile of the horizontal offsets of SIFT matches on the (rectified) pair, with a 10 % margin, rounded up
-to a multiple of 16 and capped at 256 and the image width.
+``--max-disp`` defaults to the calibration's ``ndisp`` when the pair is used as given, else to the 99th
+percentile of the horizontal offsets of SIFT matches on the (rectified) pair (or the inlier matches of the
+uncalibrated rectification), times 1.2 plus 4 px, rounded up to a multiple of 16 and capped at 256 and the
+image width.
 The default ``--method`` is the best available: a learned matcher whose weights are present, else ``sgm``,
 else ``opencv-sgbm``.
 """
@@ -40,7 +41,7 @@ import numpy as np
 import torch
 
 from stereonet.checks import StereoInputError
-from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail
+from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail, weights_available
 
 PROG = "infer.py"
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
@@ -48,6 +49,7 @@ IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
 PREFERRED = ("smd", "dispnet", "siamese-sgm", "siamese", "sgm", "opencv-sgbm")
 MAX_DISP_CAP = 256
 MIN_MATCHES = 8
+MARGIN = 1.2  # automatic max_disp = largest match disparity * MARGIN + 4 px, rounded up to 16
 
 
 @dataclass
@@ -88,26 +90,13 @@ def find_pairs(left: str, right: str) -> list[Pair]:
     return [Pair(a, b, n) for a, b, n in zip(lefts, rights, names)]
 
 
-def weights_available(name: str) -> bool:
-    """Whether the learned matcher ``name`` can run without an explicit checkpoint."""
-    try:
-        from stereonet.models import registered
-    except ImportError:
-        return False
-    probe = getattr(registered, "weights_available", None) or getattr(registered, "has_weights", None)
-    if probe is not None:
-        return bool(probe(name))
-    weights = Path(__file__).resolve().parents[2] / "weights"
-    return any(weights.glob(f"{name}.*")) or any(weights.glob(f"{name}/*"))
-
-
 def default_method() -> str:
     """The best available method: a learned one with weights, else sgm, else opencv-sgbm."""
     from stereonet import matchers
 
     names = matchers.available()
     for n in PREFERRED:
-        if n in names and (not matchers.spec(n).needs_weights or weights_available(n)):
+        if n in names and weights_available(n):
             return n
     return "opencv-sgbm"
 
@@ -136,13 +125,14 @@ def sift_matches(left: torch.Tensor, right: torch.Tensor) -> tuple[np.ndarray, n
 
 
 def estimate_max_disp(pl: np.ndarray, pr: np.ndarray, width: int, row_tol: float = 2.0) -> int | None:
-    """Disparity range from matches on a rectified pair: 98th percentile of x_l - x_r over matches on the
-    same row (|y_l - y_r| <= ``row_tol``), +10 %, rounded up to 16, capped; None with fewer than 8 matches."""
+    """Disparity range from matches on a rectified pair: 99th percentile of x_l - x_r over matches on the
+    same row (|y_l - y_r| <= ``row_tol``), times 1.2 plus 4 px (sparse matches rarely hit the nearest
+    surface), rounded up to 16, capped; None with fewer than 8 matches."""
     same_row = np.abs(pl[:, 1] - pr[:, 1]) <= row_tol
     dx = pl[same_row, 0] - pr[same_row, 0]
     if dx.size < MIN_MATCHES:
         return None
-    d = max(float(np.percentile(dx, 98)) * 1.1, 1.0)
+    d = max(float(np.percentile(dx, 99)) * MARGIN + 4, 1.0)
     return cap_max_disp(int(16 * math.ceil(d / 16)), width)
 
 
@@ -220,7 +210,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         if info["rectified"] is None and depth_calib is not None and depth_calib.ndisp:
             max_disp, source = cap_max_disp(int(depth_calib.ndisp), width), "calibration ndisp"
         elif rect is not None and rect.disparity_range is not None:
-            hint = int(16 * math.ceil(max(rect.disparity_range[1] * 1.1, 1.0) / 16))
+            hint = int(16 * math.ceil(max(rect.disparity_range[1] * MARGIN + 4, 1.0) / 16))
             max_disp, source = cap_max_disp(hint, width), "inlier SIFT matches of the rectification"
         else:
             if rect is None:

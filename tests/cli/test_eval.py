@@ -1,0 +1,162 @@
+"""eval.py: argument parsing, bad input (one line, non-zero exit), memory meter, the run on a tiny dataset."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from stereonet.cli import common
+from stereonet.cli import eval as ev
+
+REPO = Path(__file__).resolve().parents[2]
+ROW_KEYS = {"method", "dataset", "pairs", "epe", "bad1", "bad2", "bad4", "d1", "density", "seconds", "peak_mib"}
+
+
+def run_script(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(REPO / "eval.py"), *args], capture_output=True, text=True,
+                          cwd=REPO, timeout=120)
+
+
+def tiny_dataset(spec: str, n: int = 2) -> list[dict]:
+    """Random-texture fronto-parallel pairs with constant disparity 4 + i; the right border is occluded."""
+    g = torch.Generator().manual_seed(len(spec))
+    items = []
+    for i in range(n):
+        d = 4 + i
+        big = torch.rand(3, 48, 136, generator=g)
+        occ = torch.zeros(1, 48, 112, dtype=torch.bool)
+        occ[..., :d] = True
+        items.append({"left": big[..., 12:124], "right": big[..., 12 + d:124 + d],
+                      "disparity": torch.full((1, 48, 112), float(d)), "valid": torch.ones(1, 48, 112, dtype=torch.bool),
+                      "occlusion": occ, "name": f"pair{i}", "max_disp": 16})
+    return items
+
+
+def test_parse_methods_all_and_unknown():
+    names = ev.parse_methods("all")
+    assert {"opencv-bm", "opencv-sgbm"} <= set(names)
+    assert ev.parse_methods("opencv-sgbm,opencv-bm,opencv-sgbm") == ["opencv-sgbm", "opencv-bm"]
+    with pytest.raises(ValueError, match="valid names: .*opencv-bm"):
+        ev.parse_methods("opencv-bm,nonsense")
+
+
+def test_expand_data_specs(tmp_path):
+    for kind in ("middlebury2001", "kitti2015"):
+        (tmp_path / kind).mkdir()
+    specs = ev.expand_data_specs("synthetic:6, real", shared=tmp_path)
+    assert specs == ["synthetic:6", f"middlebury2001:{tmp_path / 'middlebury2001'}",
+                     f"kitti2015:{tmp_path / 'kitti2015'}"]
+    assert [ev.dataset_label(s) for s in specs] == ["synthetic:6", "middlebury2001", "kitti2015"]
+    assert ev.dataset_label("folder:/x/my_pairs/") == "folder:my_pairs"
+    with pytest.raises(FileNotFoundError, match="real"):
+        ev.expand_data_specs("real", shared=tmp_path / "absent")
+
+
+@pytest.mark.parametrize("text, expected", [(None, (0, 1)), ("1/3", (1, 3))])
+def test_parse_shard(text, expected):
+    assert ev.parse_shard(text) == expected
+
+
+@pytest.mark.parametrize("text", ["3/2", "a/b", "1", "-1/2"])
+def test_parse_shard_rejects(text):
+    with pytest.raises(ValueError, match="--shard"):
+        ev.parse_shard(text)
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--methods", "nonsense", "--data", "synthetic:1"], "valid names"),
+    (["--methods", "opencv-bm", "--data", "synthetic:1", "--shard", "5/2"], "--shard"),
+    (["--methods", "opencv-bm"], "--data"),
+    (["--methods", "opencv-bm", "--data", "middlebury2001:/no/such/folder"], "middlebury2001"),
+])
+def test_bad_input_one_line_nonzero(args, needle, capsys):
+    try:
+        code = ev.main(args)
+    except SystemExit as e:  # argparse usage errors
+        code = e.code
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("eval.py: error:") and needle in lines[0]
+
+
+def test_script_wrapper_reports_one_line():
+    r = run_script("--methods", "nonsense", "--data", "synthetic:1")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip().splitlines() == [r.stderr.strip()] and "valid names" in r.stderr
+
+
+def test_peak_memory_sees_torch_allocation():
+    with common.PeakMemory() as small:
+        torch.zeros(10)
+    with common.PeakMemory() as big:
+        x = torch.ones(40 * 2 ** 20 // 4)  # 40 MiB, touched
+        del x
+    assert big.peak_mib > 30
+    assert small.peak_mib < big.peak_mib
+
+
+def test_run_evaluation_rows_and_noc(tmp_path):
+    result = ev.run_evaluation(["opencv-bm", "opencv-sgbm"], ["fake:a", "fake:b"], progress=False,
+                               load=tiny_dataset)
+    assert [(r["method"], r["dataset"]) for r in result.rows] == [
+        ("opencv-bm", "fake:a"), ("opencv-sgbm", "fake:a"), ("opencv-bm", "fake:b"), ("opencv-sgbm", "fake:b")]
+    for r in result.rows:
+        assert ROW_KEYS <= set(r) and {"epe_noc", "bad2_noc"} <= set(r)
+        assert r["pairs"] == 2 and r["failed"] == 0
+        assert 0 <= r["bad2"] <= 100 and 0 < r["density"] <= 100 and r["seconds"] > 0
+    sgbm = result.rows[1]
+    assert sgbm["bad2_noc"] <= sgbm["bad2"] + 1e-9  # the occluded border only adds errors
+    assert len(result.pairs) == 8
+    table = ev.format_table(result.rows)
+    assert table.count("opencv-sgbm") == 2 and "bad-2" in table
+
+
+def test_plots_written(tmp_path):
+    ev.run_evaluation(["opencv-bm", "opencv-sgbm"], ["fake:a"], progress=False, load=tiny_dataset,
+                      plots=tmp_path / "plots")
+    assert (tmp_path / "plots" / "bad2.png").stat().st_size > 0
+    panels = sorted((tmp_path / "plots" / "fake_a").iterdir())
+    assert [p.name for p in panels] == ["pair0.png", "pair1.png"]
+    import cv2
+
+    panel = cv2.imread(str(panels[0]))
+    assert panel.shape[0] >= 48 and panel.shape[1] >= 6 * 112  # left, GT, two methods x (disparity, error)
+
+
+def test_invalid_pixels_count_as_errors_and_fill_makes_dense():
+    sparse = ev.run_evaluation(["opencv-bm"], ["fake"], progress=False, load=tiny_dataset)
+    dense = ev.run_evaluation(["opencv-bm"], ["fake"], fill=True, progress=False, load=tiny_dataset)
+    assert sparse.rows[0]["density"] < 100
+    assert dense.rows[0]["density"] == pytest.approx(100)
+    assert dense.rows[0]["bad2"] < sparse.rows[0]["bad2"]
+
+
+def test_failing_method_is_reported_not_fatal(monkeypatch):
+    from stereonet import matchers
+
+    def broken(left, right, max_disp):
+        raise RuntimeError("boom")
+
+    monkeypatch.setitem(matchers._REGISTRY, "broken-test", matchers.MatcherSpec("broken-test", broken, "classical", "x"))
+    result = ev.run_evaluation(["opencv-sgbm", "broken-test"], ["fake"], progress=False, load=tiny_dataset)
+    ok, bad = result.rows
+    assert ok["failed"] == 0 and ok["bad2"] is not None
+    assert bad["failed"] == 2 and bad["pairs"] == 0 and bad["bad2"] is None and "boom" in bad["error"]
+    assert "broken-test!" in ev.format_table(result.rows)
+
+
+def test_json_rows_written(tmp_path, monkeypatch):
+    monkeypatch.setattr(ev, "expand_data_specs", lambda text: ["fake"])
+    real_run = ev.run_evaluation
+    monkeypatch.setattr(ev, "run_evaluation", lambda *a, **k: real_run(*a, **{**k, "load": tiny_dataset}))
+    out = tmp_path / "r.json"
+    assert ev.main(["--methods", "opencv-bm,opencv-sgbm", "--data", "fake", "--json", str(out), "--no-progress"]) == 0
+    rows = json.loads(out.read_text())
+    assert len(rows) == 2 and all(ROW_KEYS <= set(r) for r in rows)

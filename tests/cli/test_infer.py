@@ -1,0 +1,202 @@
+"""infer.py: the contract files, depth consistent with the calibration, batch mode, rectification, bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stereonet.cli import infer
+
+REPO = Path(__file__).resolve().parents[2]
+FOCAL, BASELINE, DOFFS, SHIFT = 100.0, 0.2, 3.0, 6
+
+
+def textured_pair(seed: int = 0, h: int = 80, w: int = 160) -> tuple[np.ndarray, np.ndarray]:
+    """A blurred-noise colour texture and its copy shifted left by SHIFT px (constant disparity SHIFT)."""
+    rng = np.random.default_rng(seed)
+    big = cv2.GaussianBlur(rng.random((h, w + 32, 3)).astype(np.float32), (0, 0), 1.2)
+    big = (255 * (big - big.min()) / (big.max() - big.min())).astype(np.uint8)
+    return big[:, 16:16 + w].copy(), big[:, 16 + SHIFT:16 + SHIFT + w].copy()
+
+
+def write_calib(path: Path, w: int = 160, h: int = 80, ndisp: int = 16) -> Path:
+    cam0 = f"[{FOCAL} 0 {w / 2}; 0 {FOCAL} {h / 2}; 0 0 1]"
+    cam1 = f"[{FOCAL} 0 {w / 2 + DOFFS}; 0 {FOCAL} {h / 2}; 0 0 1]"
+    path.write_text(f"cam0={cam0}\ncam1={cam1}\ndoffs={DOFFS}\nbaseline={BASELINE}\nwidth={w}\nheight={h}\n"
+                    f"ndisp={ndisp}\n")
+    return path
+
+
+@pytest.fixture
+def pair_files(tmp_path) -> tuple[Path, Path]:
+    left, right = textured_pair()
+    lp, rp = tmp_path / "left.png", tmp_path / "right.png"
+    cv2.imwrite(str(lp), left)
+    cv2.imwrite(str(rp), right)
+    return lp, rp
+
+
+def run_main(capsys, *args) -> tuple[int, str]:
+    code = infer.main([str(a) for a in args] + ["--no-progress"])
+    return code, capsys.readouterr().err
+
+
+def one_line_error(err: str) -> str:
+    lines = [x for x in err.strip().splitlines() if x]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("infer.py: error:") and "Traceback" not in err
+    return lines[0]
+
+
+def test_rectified_pair_with_calibration_writes_contract_files(pair_files, tmp_path, capsys):
+    from stereonet.io import read_disparity, read_pfm, read_ply
+
+    out = tmp_path / "out"
+    calib = write_calib(tmp_path / "calib.txt")
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "opencv-sgbm", "--calib", calib)
+    assert code == 0, err
+    assert {"disparity.pfm", "disparity.png", "depth.pfm", "cloud.ply", "info.json"} <= {p.name for p in out.iterdir()}
+    assert not any(p.name.startswith(".") for p in tmp_path.iterdir())  # no temporary folder left behind
+    disp, valid = read_disparity(out / "disparity.pfm")
+    assert disp.shape == (80, 160) and valid.mean() > 0.5
+    assert np.median(disp[valid]) == pytest.approx(SHIFT, abs=0.5)
+    depth = read_pfm(out / "depth.pfm")
+    both = valid & np.isfinite(depth)
+    np.testing.assert_allclose(depth[both], FOCAL * BASELINE / (disp[both] + DOFFS), rtol=1e-4)
+    points, colors = read_ply(out / "cloud.ply")
+    assert points.shape == (int(both.sum()), 3) and colors.shape == points.shape and colors.dtype == np.uint8
+    info = json.loads((out / "info.json").read_text())
+    assert info["max_disp"] == 16 and info["max_disp_source"] == "calibration ndisp" and info["rectified"] is None
+    png = cv2.imread(str(out / "disparity.png"))
+    assert png.shape == (80, 160, 3)
+
+
+def test_no_calibration_no_depth_and_auto_max_disp(pair_files, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "opencv-bm")
+    assert code == 0, err
+    names = {p.name for p in out.iterdir()}
+    assert {"disparity.pfm", "disparity.png"} <= names and not {"depth.pfm", "cloud.ply"} & names
+    info = json.loads((out / "info.json").read_text())
+    assert info["max_disp"] % 16 == 0 and 16 <= info["max_disp"] <= 64
+
+
+def test_estimate_max_disp_from_offsets():
+    pl = np.array([[50.0 + i, 10.0 + i] for i in range(20)])
+    pr = pl - np.array([[20.0, 0.0]])
+    assert infer.estimate_max_disp(pl, pr, width=640) == 32  # 20 * 1.2 + 4 = 28 -> 32
+    assert infer.estimate_max_disp(pl, pr + np.array([[-300.0, 0.0]]), width=640) == 256  # capped
+    assert infer.estimate_max_disp(pl[:3], pr[:3], width=640) is None  # too few matches
+    off_row = pr + np.array([[0.0, 5.0]])
+    assert infer.estimate_max_disp(pl, off_row, width=640) is None
+
+
+def test_batch_of_folders(tmp_path, capsys):
+    ldir, rdir = tmp_path / "L", tmp_path / "R"
+    ldir.mkdir()
+    rdir.mkdir()
+    for i, name in enumerate(["a", "b"]):
+        left, right = textured_pair(seed=i)
+        cv2.imwrite(str(ldir / f"{name}.png"), left)
+        cv2.imwrite(str(rdir / f"{name}_r.png"), right)
+    out = tmp_path / "out"
+    code, err = run_main(capsys, ldir, rdir, "-o", out, "--method", "opencv-sgbm", "--max-disp", "16")
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["a", "b"]
+    assert all((out / n / "disparity.pfm").is_file() for n in ("a", "b"))
+
+
+def test_existing_output_needs_overwrite(pair_files, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("old")
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "opencv-bm", "--max-disp", "16")
+    assert code == 2 and "--overwrite" in one_line_error(err)
+    assert (out / "keep.txt").read_text() == "old"
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "opencv-bm", "--max-disp", "16", "--overwrite")
+    assert code == 0, err
+    assert not (out / "keep.txt").exists() and (out / "disparity.pfm").is_file()
+
+
+@pytest.mark.parametrize("case", ["mismatched", "unreadable", "calib-size", "missing", "checkpoint", "method"])
+def test_bad_input_one_line_and_nothing_written(case, pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    extra: list = ["--method", "opencv-sgbm", "--max-disp", "16"]
+    needle = {"mismatched": "size", "unreadable": "right", "calib-size": "--calib", "missing": "LEFT",
+              "checkpoint": "--checkpoint", "method": "valid names"}[case]
+    if case == "mismatched":
+        cv2.imwrite(str(rp), np.zeros((40, 160, 3), np.uint8))
+    elif case == "unreadable":
+        rp.write_bytes(b"\x89PNG\r\n\x1a\nnot really a png")
+    elif case == "calib-size":
+        extra += ["--calib", write_calib(tmp_path / "calib.txt", w=320, h=160)]
+    elif case == "missing":
+        lp = tmp_path / "nope.png"
+    elif case == "checkpoint":
+        ckpt = tmp_path / "w.ckpt"
+        ckpt.write_bytes(b"0")
+        extra += ["--checkpoint", ckpt]
+    elif case == "method":
+        extra = ["--method", "no-such-method"]
+    out = tmp_path / "out"
+    code, err = run_main(capsys, lp, rp, "-o", out, *extra)
+    assert code == 2
+    assert needle in one_line_error(err)
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_uncalibrated_rectifies_a_rotated_pair(shared_data, tmp_path, capsys):
+    """Cones with the right view rotated by 2 degrees and shifted down: --uncalibrated must restore rows."""
+    from stereonet.io import read_disparity
+
+    scene = shared_data / "middlebury2003" / "cones"
+    right = cv2.imread(str(scene / "im6.png"))
+    h, w = right.shape[:2]
+    M = cv2.getRotationMatrix2D((w / 2, h / 2), 2.0, 1.0)
+    M[1, 2] += 6
+    cv2.imwrite(str(tmp_path / "right.png"), cv2.warpAffine(right, M, (w, h), borderMode=cv2.BORDER_REFLECT))
+    out = tmp_path / "out"
+    code, err = run_main(capsys, scene / "im2.png", tmp_path / "right.png", "-o", out, "--uncalibrated",
+                         "--method", "opencv-sgbm")
+    assert code == 0, err
+    names = {p.name for p in out.iterdir()}
+    assert {"rectified_left.png", "rectified_right.png", "epipolar_check.png", "disparity.pfm"} <= names
+    assert not {"depth.pfm", "cloud.ply"} & names  # no metric scale without calibration
+    info = json.loads((out / "info.json").read_text())
+    assert info["epipolar_median_row_error_px"] < 1.0
+    assert 32 <= info["max_disp"] <= 128
+    disp, valid = read_disparity(out / "disparity.pfm")
+    assert valid.mean() > 0.5
+
+
+def test_too_few_matches_is_refused(tmp_path, capsys):
+    flat = np.full((64, 128, 3), 128, np.uint8)
+    cv2.imwrite(str(tmp_path / "l.png"), flat)
+    cv2.imwrite(str(tmp_path / "r.png"), flat)
+    code, err = run_main(capsys, tmp_path / "l.png", tmp_path / "r.png", "-o", tmp_path / "out", "--uncalibrated",
+                         "--method", "opencv-bm")
+    assert code == 2 and "matches" in one_line_error(err)
+    assert not (tmp_path / "out").exists()
+
+
+def test_script_wrapper_runs(pair_files, tmp_path):
+    r = subprocess.run([sys.executable, str(REPO / "infer.py"), *map(str, pair_files), "-o", str(tmp_path / "o"),
+                        "--method", "opencv-bm", "--max-disp", "16"], capture_output=True, text=True, cwd=REPO,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "o" / "disparity.png").is_file()
+
+
+def test_default_method_is_registered():
+    from stereonet import matchers
+
+    name = infer.default_method()
+    assert name in matchers.available()
+    assert not matchers.spec(name).needs_weights or infer.weights_available(name)
