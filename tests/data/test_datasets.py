@@ -189,8 +189,9 @@ def test_dataloader_collate(tmp_path):
     ("", "spec: expected a data spec"),
 ])
 def test_bad_specs(spec, msg):
-    with pytest.raises(StereoInputError, match=msg):
+    with pytest.raises(StereoInputError, match=msg) as e:
         load_dataset(spec)
+    assert "\n" not in str(e.value)  # one line, for the command-line error
 
 
 def test_missing_and_wrong_layout(tmp_path):
