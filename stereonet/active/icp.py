@@ -242,3 +242,61 @@ def merge_scans(points: Sequence[torch.Tensor], colors: Sequence[torch.Tensor] |
     if voxel is not None:
         return voxel_downsample(pts, col, voxel)
     return pts, col
+
+
+@dataclass
+class RangeScan:
+    """One range scan: camera-frame ``points`` :math:`(N, 3)`, ``colors`` :math:`(N, 3)` uint8, and the scanner's
+    true world-to-camera pose ``R`` :math:`(3, 3)`, ``t`` :math:`(3,)` (for evaluation and for making guesses)."""
+
+    points: torch.Tensor
+    colors: torch.Tensor
+    R: torch.Tensor
+    t: torch.Tensor
+
+
+def relative_pose(R_to: torch.Tensor, t_to: torch.Tensor, R_from: torch.Tensor,
+                  t_from: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pose mapping points of camera ``from`` into camera ``to`` (both world-to-camera poses):
+    ``R = R_to R_from^T``, ``t = t_to - R t_from``."""
+    R = R_to.to(_F64) @ R_from.to(_F64).T
+    return R, t_to.to(_F64) - R @ t_from.to(_F64)
+
+
+@dataclass
+class Alignment:
+    """:func:`align_scans` output: per scan the pose into scan 0's frame (``R[i]``, ``t[i]``; scan 0 is the
+    identity) and the :class:`ICPResult` of scans 1..n-1 (``results[i - 1]``)."""
+
+    R: list
+    t: list
+    results: list
+
+
+def align_scans(points: Sequence[torch.Tensor], init_R: Sequence[torch.Tensor], init_t: Sequence[torch.Tensor],
+                method: str = "point_to_plane", voxel: float | None = 0.01, max_distance: float = 0.1,
+                **icp_options) -> Alignment:
+    """Register scans 1..n-1 one after another onto the growing model of the scans already placed (frame of
+    scan 0), each from its initial guess ``init_R[i], init_t[i]`` (into scan 0's frame; entry 0 is ignored).
+
+    Aligning to the growing model rather than to scan 0 alone lets a scan that barely overlaps scan 0 lock
+    onto the scans between them. Raises like :func:`icp` when a scan overlaps none of the placed ones.
+    """
+    if not (len(points) == len(init_R) == len(init_t)) or len(points) < 2:
+        raise StereoInputError("points/init_R/init_t: expected one entry per scan each, at least 2 scans")
+    eye, zero = torch.eye(3, dtype=_F64), torch.zeros(3, dtype=_F64)
+    Rs, ts, results = [eye], [zero], []
+    model = _check_points(points[0], "points[0]")
+    for i in range(1, len(points)):
+        tgt = voxel_downsample(model, None, voxel)[0] if voxel else model
+        src = _check_points(points[i], f"points[{i}]")
+        src_ds = voxel_downsample(src, None, voxel)[0] if voxel else src
+        try:
+            res = icp(src_ds, tgt, init_R[i], init_t[i], method=method, max_distance=max_distance, **icp_options)
+        except StereoInputError as e:
+            raise StereoInputError(f"points[{i}]: {e}") from e
+        Rs.append(res.R)
+        ts.append(res.t)
+        results.append(res)
+        model = torch.cat([model, res.transform(src)])
+    return Alignment(Rs, ts, results)

@@ -73,10 +73,29 @@ def render_view(scene: Scene, camera: PinholeCamera, emitters: Sequence[Emitter]
         g = torch.Generator().manual_seed(int(seed))
         img = img + noise_std * torch.randn(img.shape, generator=g, dtype=img.dtype)
     img = img.clamp(0, 1).to(torch.float32)
-    if samples == 1:
-        centre = hits
-    else:
-        o0, d0 = camera.rays(camera.pixel_grid(1)[:, :, 0])
-        centre = raycast(scene, o0, d0)
-    depth = torch.where(centre.hit, centre.t, torch.zeros_like(centre.t))  # |dir_z| = 1 in camera frame
-    return View(img, depth, centre.hit, centre.points, centre.normals, centre.albedo)
+    centre = hits if samples == 1 else raycast(scene, *camera.rays(camera.pixel_grid(1)))  # HxWx1
+    c = lambda x: x[:, :, 0]
+    depth = torch.where(c(centre.hit), c(centre.t), torch.zeros_like(c(centre.t)))  # ray dir has z = 1
+    return View(img, depth, c(centre.hit), c(centre.points), c(centre.normals), c(centre.albedo))
+
+
+def render_range_scan(scene: Scene, camera: PinholeCamera, noise_std: float = 0.002, stride: int = 1,
+                      max_range: float | None = None, seed: int = 0):
+    """A range scanner's output at ``camera``: camera-frame points :math:`(N, 3)` of every ``stride``-th pixel
+    hit (depth noise ``noise_std`` along the ray, seeded; beyond ``max_range`` dropped) with uint8 colours
+    (shaded albedo), as a :class:`~stereonet.active.icp.RangeScan` carrying the true pose."""
+    from stereonet.active.icp import RangeScan
+
+    view = render_view(scene, camera)
+    sl = (slice(None, None, stride), slice(None, None, stride))
+    depth, hit = view.depth[sl], view.hit[sl]
+    if max_range is not None:
+        hit = hit & (depth <= max_range)
+    g = torch.Generator().manual_seed(int(seed))
+    noisy = depth * (1 + noise_std * torch.randn(depth.shape, generator=g, dtype=depth.dtype) / depth.clamp_min(1e-9))
+    v, u = torch.meshgrid(torch.arange(0, camera.height, stride, dtype=torch.float64),
+                          torch.arange(0, camera.width, stride, dtype=torch.float64), indexing="ij")
+    uv1 = torch.stack([u, v, torch.ones_like(u)], dim=-1)
+    pts = (uv1 @ torch.linalg.inv(camera.K).T) * noisy[..., None]  # HxWx3, z = noisy depth
+    colors = (view.image[0].permute(1, 2, 0)[sl] * 255 + 0.5).to(torch.uint8)
+    return RangeScan(pts[hit], colors[hit], camera.R.clone(), camera.t.clone())

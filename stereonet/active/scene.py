@@ -118,7 +118,7 @@ class PinholeCamera:
         uv1 = torch.cat([uv.to(_F64), torch.ones_like(uv[..., :1], dtype=_F64)], dim=-1)
         d_cam = uv1 @ torch.linalg.inv(self.K).T
         d_world = d_cam @ self.R  # (R^T d)^T = d^T R
-        return self.center.expand_as(d_world), d_world
+        return self.center.expand_as(d_world), d_world  # expanded view: no copy
 
     def to_camera(self, points: torch.Tensor) -> torch.Tensor:
         """World points :math:`(*, 3)` -> camera coordinates :math:`(*, 3)`."""
@@ -310,8 +310,10 @@ def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor, shade: bool
     check_shape(origins, ["*", "3"], "origins")
     check_shape(dirs, ["*", "3"], "dirs")
     lead = dirs.shape[:-1]
-    o = origins.to(_F64).expand_as(dirs).reshape(-1, 3)  # Nx3
     d = dirs.to(_F64).reshape(-1, 3)  # Nx3
+    # one shared origin (a camera centre) stays 1x3 and broadcasts: no N x 3 copy
+    shared = origins.numel() == 3 or (origins.dim() > 1 and origins.stride()[:-1] == (0,) * (origins.dim() - 1))
+    o = origins.to(_F64).reshape(-1, 3)[:1] if shared else origins.to(_F64).expand_as(dirs).reshape(-1, 3)
     n_rays = d.shape[0]
     best_t = torch.full((n_rays,), _NO_HIT, dtype=_F64)
     best_n = torch.zeros(n_rays, 3, dtype=_F64)
@@ -323,7 +325,7 @@ def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor, shade: bool
         best_n = torch.where(closer[:, None], nrm, best_n)
         best_id = torch.where(closer, torch.full_like(best_id, i), best_id)
     hit = torch.isfinite(best_t)
-    points = o + torch.where(hit, best_t, torch.zeros_like(best_t))[:, None] * d
+    points = o + best_t.masked_fill(~hit, 0.0)[:, None] * d
     facing = (best_n * d).sum(-1) > 0
     best_n = torch.where(facing[:, None], -best_n, best_n)
     albedo = torch.zeros(n_rays, 3, dtype=_F64)

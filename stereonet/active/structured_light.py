@@ -352,3 +352,57 @@ def coded_light_scan(scene: Scene, camera: PinholeCamera, projector: PinholeCame
         valid = reject_depth_edges(depth, valid, max_relative_jump)
         depth = torch.where(valid, depth, torch.zeros_like(depth))
     return CodedScan(depth, valid, cols, cap.images, cap.view)
+
+
+# ----------------------------------------------------------------------------------------------- active stereo
+
+
+@dataclass
+class ActivePair:
+    """A rectified pair rendered with the projector showing ``pattern`` (or off): ``left``/``right``
+    :math:`(1, 3, H, W)` float32, GT ``disparity`` :math:`(1, 1, H, W)`, ``valid``, ``occlusion`` (True = not seen
+    by the right camera), and the left ``depth`` :math:`(H, W)`."""
+
+    left: torch.Tensor
+    right: torch.Tensor
+    disparity: torch.Tensor
+    valid: torch.Tensor
+    occlusion: torch.Tensor
+    depth: torch.Tensor
+
+
+def render_active_pair(scene: Scene, rig, pattern: torch.Tensor | None, seed: int = 0, samples: int = 2,
+                       **capture_options) -> ActivePair:
+    """Render ``rig`` (a :class:`~stereonet.active.scenes.Rig`) with its projector showing ``pattern``
+    :math:`(H_p, W_p)` (None = projector off), plus the exact left-referenced GT disparity ``f B / z``."""
+    proj = rig.projector
+    pat = torch.zeros(1, proj.height, proj.width) if pattern is None else pattern[None]
+    capl = capture_patterns(scene, rig.left, proj, pat, seed=2 * seed, samples=samples, **capture_options)
+    capr = capture_patterns(scene, rig.right, proj, pat, seed=2 * seed + 1, samples=samples, **capture_options)
+    view = capl.view
+    depth = view.depth
+    valid = view.hit & (depth > 0)
+    disp = torch.where(valid, rig.focal * rig.baseline / torch.where(valid, depth, torch.ones_like(depth)),
+                       torch.zeros_like(depth))
+    uv_r, z_r = rig.right.project(view.points)
+    seen = (visible_from(scene, view.points, view.normals, rig.right.center) & (z_r > 0)
+            & (uv_r[..., 0] >= 0) & (uv_r[..., 0] <= rig.right.width - 1))
+    f32 = lambda x: x[None, None].float()
+    return ActivePair(capl.images, capr.images, f32(disp), valid[None, None], (~seen | ~valid)[None, None], depth)
+
+
+def compare_active_passive(scene: Scene, rig, method: str, pattern: torch.Tensor, seed: int = 0,
+                           max_disp: int | None = None, **options) -> dict[str, dict[str, float]]:
+    """Run the same matcher on the pair with the projector off and on; metrics of each
+    (:func:`stereonet.metrics.evaluate` keys, including ``bad2_noc``; missing answers count as errors)."""
+    from stereonet.matchers import match
+    from stereonet.metrics import evaluate
+
+    max_disp = rig.max_disp() if max_disp is None else max_disp
+    out = {}
+    for name, pat in (("passive", None), ("active", pattern)):
+        pair = render_active_pair(scene, rig, pat, seed=seed)
+        res = match(method, pair.left, pair.right, max_disp, **options)
+        out[name] = evaluate(res.disparity, pair.disparity, pair.valid, res.valid, occlusion=pair.occlusion,
+                             see=False)
+    return out
