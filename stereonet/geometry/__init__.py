@@ -48,6 +48,8 @@ from stereonet.geometry.rectify import (
     rectify_points,
     rectify_uncalibrated,
     rectifying_rotation,
+    stereo_rectify,
+    stereo_rectify_uncalibrated,
     warp_image,
 )
 from stereonet.geometry.triangulate import (
@@ -99,6 +101,8 @@ __all__ = [
     "reproject_disparity",
     "reprojection_error",
     "sampson_distance",
+    "stereo_rectify",
+    "stereo_rectify_uncalibrated",
     "triangulate",
     "triangulate_dlt",
     "triangulate_midpoint",

@@ -156,8 +156,13 @@ def sampson_distance(pts1: torch.Tensor, pts2: torch.Tensor, F: torch.Tensor, sq
         divided by 1e-300 instead of a NaN.
     """
     x1, x2 = _homogeneous(pts1), _homogeneous(pts2)
-    Fx1 = x1 @ F.transpose(-1, -2)  # *xNx3, rows are (F x1)^T
-    Ftx2 = x2 @ F  # *xNx3, rows are (F^T x2)^T
+    if x1.dim() == 2 and F.dim() == 3:  # one point set against H models (RANSAC): two plain matmuls
+        h, n = F.shape[0], x1.shape[0]
+        Fx1 = (F.reshape(h * 3, 3) @ x1.T).reshape(h, 3, n).transpose(1, 2)  # HxNx3
+        Ftx2 = (F.transpose(1, 2).reshape(h * 3, 3) @ x2.T).reshape(h, 3, n).transpose(1, 2)  # HxNx3
+    else:
+        Fx1 = x1 @ F.transpose(-1, -2)  # *xNx3, rows are (F x1)^T
+        Ftx2 = x2 @ F  # *xNx3, rows are (F^T x2)^T
     algebraic = (x2 * Fx1).sum(-1)
     denom = Fx1[..., 0] ** 2 + Fx1[..., 1] ** 2 + Ftx2[..., 0] ** 2 + Ftx2[..., 1] ** 2
     d2 = algebraic**2 / denom.clamp_min(1e-300)
@@ -324,7 +329,7 @@ def _sample_minimal_sets(num_points: int, count: int, generator: torch.Generator
 
 
 def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ransac", threshold: float = 1.0,
-                       confidence: float = 0.999, max_iterations: int = 5000, batch_size: int = 256,
+                       confidence: float = 0.999, max_iterations: int = 5000, batch_size: int = 64,
                        seed: int = 0, check_planar: bool = True) -> FundamentalEstimate:
     """Robust F by RANSAC or LMedS over eight-point hypotheses, scored with the Sampson distance.
 
@@ -367,7 +372,7 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
         except DegenerateGeometryError:  # a sample of coincident points: redraw
             done += count
             continue
-        d2 = sampson_distance(p1.expand(count, n, 2), p2.expand(count, n, 2), F_h)  # HxN
+        d2 = sampson_distance(p1, p2, F_h)  # HxN
         if method == "ransac":
             score = -((d2 < threshold**2) & (margin > 1e-12)[:, None]).sum(-1).double()
         else:

@@ -43,12 +43,13 @@ def random_rig(seed: int, image_size: tuple[int, int] = (640, 480), max_rotation
     def u(lo: float, hi: float) -> float:
         return lo + (hi - lo) * float(torch.rand(1, generator=g, dtype=torch.float64))
 
-    def intrinsics() -> torch.Tensor:
-        f = u(0.8, 1.4) * w
+    def intrinsics(f: float) -> torch.Tensor:
         return torch.tensor([[f * u(0.98, 1.02), 0.0, w / 2 + u(-20, 20)], [0.0, f, h / 2 + u(-15, 15)],
                              [0.0, 0.0, 1.0]], dtype=torch.float64)
 
-    K1, K2 = intrinsics(), intrinsics()
+    f = u(0.8, 1.4) * w
+    K1 = intrinsics(f)
+    K2 = intrinsics(f * u(0.95, 1.05))
     R = random_rotation(max_rotation_deg, g)
     centre = torch.tensor([1.0, off_axis * float(torch.randn(1, generator=g)),
                            off_axis * float(torch.randn(1, generator=g))], dtype=torch.float64)

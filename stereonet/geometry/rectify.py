@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from kornia.geometry.transform import remap, warp_perspective
 
 from stereonet.checks import StereoInputError, check_image_pair
 from stereonet.geometry.camera import DegenerateGeometryError, distort_pixels, undistort_pixels
-from stereonet.geometry.epipolar import epipoles, fundamental_robust
+from stereonet.geometry.epipolar import epipoles, fundamental_robust, sampson_distance
 from stereonet.types import Calibration
 
 __all__ = [
@@ -30,6 +30,8 @@ __all__ = [
     "rectify_points",
     "rectify_uncalibrated",
     "rectifying_rotation",
+    "stereo_rectify",
+    "stereo_rectify_uncalibrated",
     "warp_image",
 ]
 
@@ -39,7 +41,8 @@ class Rectification:
     """A rectified pair and everything needed to map between the original and rectified frames.
 
     Attributes:
-        left, right: rectified images :math:`(B, C, H', W')`.
+        left, right: rectified images :math:`(B, C, H', W')` (None from :func:`stereo_rectify`, which computes
+            the geometry only).
         H1, H2: float64 :math:`(3, 3)` homographies from the original *ideal* (undistorted) pixels of the
             left/right image to the rectified pixels (``K R_rect K1^-1`` and ``K R_rect R^T K2^-1`` when
             calibrated).
@@ -50,24 +53,24 @@ class Rectification:
         calib: the rectified rig as a :class:`Calibration` (usable by ``disparity_to_depth``); None when
             uncalibrated.
         maps: ``(map_left, map_right)``, each :math:`(H', W', 2)`: the source pixel ``(x, y)`` each rectified
-            pixel samples (lens distortion included).
+            pixel samples (lens distortion included); None from :func:`stereo_rectify`.
         R1, R2: rectifying rotations of the left/right camera (calibrated only, else None).
         original: the calibration the pair came with (for :func:`rectify_points`), None when uncalibrated.
         F: fundamental matrix of the original pair (uncalibrated only); matches / inliers: the matches
             :math:`(N, 2)` x 2 in original pixels and their inlier mask (uncalibrated only).
-        disparity_range: (min, max) disparity of the inlier matches after rectification (uncalibrated), a hint
-            for ``max_disp``.
+        disparity_range: (1st, 99th percentile) of the inlier matches' disparity after rectification
+            (uncalibrated), a hint for ``max_disp``.
     """
 
-    left: torch.Tensor
-    right: torch.Tensor
+    left: torch.Tensor | None
+    right: torch.Tensor | None
     H1: torch.Tensor
     H2: torch.Tensor
     P1: torch.Tensor | None
     P2: torch.Tensor | None
     Q: torch.Tensor | None
     calib: Calibration | None
-    maps: tuple[torch.Tensor, torch.Tensor]
+    maps: tuple[torch.Tensor, torch.Tensor] | None
     R1: torch.Tensor | None = None
     R2: torch.Tensor | None = None
     original: Calibration | None = None
@@ -226,34 +229,34 @@ def _warp_pair(left, right, H1, H2, maps, distorted: tuple[bool, bool], out_size
     return l_img, r_img
 
 
-def rectify_calibrated(left: torch.Tensor, right: torch.Tensor, calib: Calibration, alpha: float = 1.0,
-                       output_size: tuple[int, int] | None = None, method: str = "kornia") -> Rectification:
-    """Rectify a calibrated pair.
+def stereo_rectify(calib: Calibration, alpha: float = 1.0, output_size: tuple[int, int] | None = None,
+                   method: str = "kornia") -> Rectification:
+    """The rectifying geometry of a calibrated rig, without touching images (OpenCV's ``stereoRectify``).
 
     ``method="kornia"`` (ours): the rectifying rotation ``R_rect`` of :func:`rectifying_rotation` is given to
     the left camera and ``R_rect R^T`` to the right one, so both look along the same axis with the baseline as
     their x axis; one shared intrinsic matrix ``K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]`` (f from the mean
-    focal length, scaled and centred so that the warped content fits, see ``alpha``); the images are warped by
-    ``H1 = K R_rect K1^-1`` and ``H2 = K R_rect R^T K2^-1`` (lens distortion removed in the same lookup).
-    ``method="opencv"``: ``cv2.stereoRectify`` (CALIB_ZERO_DISPARITY) and ``cv2.initUndistortRectifyMap``,
-    returned in the same :class:`Rectification` layout, warped with kornia's remap.
+    focal length, scaled and centred so that the warped content fits, see ``alpha``); the homographies are
+    ``H1 = K R_rect K1^-1`` and ``H2 = K R_rect R^T K2^-1``.
+    ``method="opencv"``: ``cv2.stereoRectify`` with ``CALIB_ZERO_DISPARITY``, returned in the same layout.
 
     Args:
-        left, right: :math:`(B, C, H, W)` float in [0, 1], the original (unrectified) images.
-        calib: their :class:`Calibration` (``X_r = R X_l + t``, optional OpenCV distortion).
+        calib: the rig (``X_r = R X_l + t``, optional OpenCV distortion); ``calib.image_size`` is required.
         alpha: 1 keeps every source pixel in view, 0 shows only the region both images cover (OpenCV's alpha).
-        output_size: ``(H', W')`` of the rectified images (default: the input size).
+        output_size: ``(H', W')`` of the rectified images (default: the calibration's image size).
 
     Returns:
-        :class:`Rectification`; ``.calib`` is the rectified rig (R = I, t = (-B, 0, 0), shared K).
+        :class:`Rectification` with ``left``, ``right`` and ``maps`` set to None (see :func:`rectify_calibrated`).
     """
-    left, right = check_image_pair(left, right)
-    _, _, h, w = left.shape
-    calib = _check_calib_for(calib, w, h)
+    if not isinstance(calib, Calibration):
+        raise TypeError(f"calib: expected a stereonet.types.Calibration, got {type(calib).__name__}")
+    if calib.image_size is None:
+        raise StereoInputError("calib.image_size: expected (width, height) of the images, got None")
+    w, h = calib.image_size
     alpha = _check_alpha(alpha)
     out_h, out_w = _output_size(output_size, h, w)
     if method == "opencv":
-        return _rectify_opencv(left, right, calib, alpha, out_h, out_w)
+        return _stereo_rectify_opencv(calib, alpha, out_h, out_w)
     if method != "kornia":
         raise ValueError(f"method: expected 'kornia' or 'opencv', got {method!r}")
     K1, K2, R = calib.K1, calib.K2, calib.R
@@ -274,40 +277,61 @@ def rectify_calibrated(left: torch.Tensor, right: torch.Tensor, calib: Calibrati
     K_new = torch.tensor([[s * f0, 0.0, ox], [0.0, s * f0, oy], [0.0, 0.0, 1.0]], dtype=torch.float64)
     H1 = K_new @ R1 @ torch.linalg.inv(K1)
     H2 = K_new @ R2 @ torch.linalg.inv(K2)
-    maps = (rectification_maps(H1, out_h, out_w, K1, calib.dist1, left.dtype),
-            rectification_maps(H2, out_h, out_w, K2, calib.dist2, left.dtype))
-    distorted = (_has_distortion(calib.dist1), _has_distortion(calib.dist2))
-    l_img, r_img = _warp_pair(left, right, H1, H2, maps, distorted, (out_h, out_w))
     P1, P2, Q, rect_calib = _rectified_outputs(K_new, calib.baseline, out_w, out_h)
-    return Rectification(l_img, r_img, H1, H2, P1, P2, Q, rect_calib, maps, R1=R1, R2=R2, original=calib)
+    return Rectification(None, None, H1, H2, P1, P2, Q, rect_calib, None, R1=R1, R2=R2, original=calib)
 
 
-def _rectify_opencv(left, right, calib: Calibration, alpha: float, out_h: int, out_w: int) -> Rectification:
+def _stereo_rectify_opencv(calib: Calibration, alpha: float, out_h: int, out_w: int) -> Rectification:
     import cv2
     import numpy as np
 
-    _, _, h, w = left.shape
-    K1, K2 = calib.K1.numpy(), calib.K2.numpy()
+    w, h = calib.image_size
     d1 = np.zeros(5) if calib.dist1 is None else calib.dist1.numpy()
     d2 = np.zeros(5) if calib.dist2 is None else calib.dist2.numpy()
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, d1, K2, d2, (w, h), calib.R.numpy(), calib.t.numpy().reshape(3, 1),
-                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha,
-                                                newImageSize=(out_w, out_h))
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(calib.K1.numpy(), d1, calib.K2.numpy(), d2, (w, h), calib.R.numpy(),
+                                                calib.t.numpy().reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY,
+                                                alpha=alpha, newImageSize=(out_w, out_h))
     R1, R2, P1, P2, Q = (torch.from_numpy(np.asarray(m, dtype=np.float64)) for m in (R1, R2, P1, P2, Q))
     H1 = P1[:, :3] @ R1 @ calib.K1.inverse()
     H2 = P2[:, :3] @ R2 @ calib.K2.inverse()
-    maps = []
-    for K, d, Rr, P in ((K1, d1, R1, P1), (K2, d2, R2, P2)):
-        mx, my = cv2.initUndistortRectifyMap(K, d, Rr.numpy(), P.numpy(), (out_w, out_h), cv2.CV_32FC1)
-        maps.append(torch.from_numpy(np.stack([mx, my], -1)).to(left.dtype))
-    l_img, r_img = _warp_pair(left, right, H1, H2, maps, (True, True), (out_h, out_w))
     f = float(P1[0, 0])
     baseline = -float(P2[0, 3]) / f
     doffs = float(P2[0, 2] - P1[0, 2])
     rect_calib = Calibration.rectified(f, float(P1[0, 2]), float(P1[1, 2]), baseline, image_size=(out_w, out_h),
                                        doffs=doffs)
-    return Rectification(l_img, r_img, H1, H2, P1, P2, Q, rect_calib, (maps[0], maps[1]), R1=R1, R2=R2,
-                         original=calib)
+    return Rectification(None, None, H1, H2, P1, P2, Q, rect_calib, None, R1=R1, R2=R2, original=calib)
+
+
+def rectify_calibrated(left: torch.Tensor, right: torch.Tensor, calib: Calibration, alpha: float = 1.0,
+                       output_size: tuple[int, int] | None = None, method: str = "kornia") -> Rectification:
+    """Rectify a calibrated pair: :func:`stereo_rectify` (``method`` "kornia" = ours, "opencv" =
+    ``cv2.stereoRectify``), then inverse-map both images: kornia ``warp_perspective`` by ``H1``/``H2`` when the
+    lens is undistorted (differentiable in the images and the homography), kornia ``remap`` through
+    :func:`rectification_maps` (undistortion in the same lookup) when it is distorted.
+
+    Args:
+        left, right: :math:`(B, C, H, W)` float in [0, 1], the original (unrectified) images.
+        calib: their :class:`Calibration` (``X_r = R X_l + t``, optional OpenCV distortion); when its
+            ``image_size`` is None the images' size is used.
+        alpha: 1 keeps every source pixel in view, 0 shows only the region both images cover (OpenCV's alpha).
+        output_size: ``(H', W')`` of the rectified images (default: the input size).
+
+    Returns:
+        :class:`Rectification`; ``.calib`` is the rectified rig (R = I, t = (-B, 0, 0), shared K).
+    """
+    left, right = check_image_pair(left, right)
+    _, _, h, w = left.shape
+    calib = _check_calib_for(calib, w, h)
+    if calib.image_size is None:
+        calib = replace(calib, image_size=(w, h))
+    rect = stereo_rectify(calib, alpha=alpha, output_size=output_size, method=method)
+    out_h, out_w = _output_size(output_size, h, w)
+    maps = (rectification_maps(rect.H1, out_h, out_w, calib.K1, calib.dist1, left.dtype),
+            rectification_maps(rect.H2, out_h, out_w, calib.K2, calib.dist2, left.dtype))
+    distorted = (_has_distortion(calib.dist1), _has_distortion(calib.dist2))
+    rect.left, rect.right = _warp_pair(left, right, rect.H1, rect.H2, maps, distorted, (out_h, out_w))
+    rect.maps = maps
+    return rect
 
 
 def rectify_from_file(left: torch.Tensor, right: torch.Tensor, path: str | os.PathLike, alpha: float = 1.0,
@@ -401,15 +425,63 @@ def _jacobian(H: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     return torch.autograd.functional.jacobian(lambda q: apply_homography(H, q[None])[0], p)
 
 
+def stereo_rectify_uncalibrated(pts1: torch.Tensor, pts2: torch.Tensor, image_size: tuple[int, int],
+                                F: torch.Tensor | None = None, alpha: float = 1.0,
+                                output_size: tuple[int, int] | None = None, threshold: float = 1.0,
+                                min_matches: int = 16, seed: int = 0) -> Rectification:
+    """Rectifying homographies from matches alone (no images are touched): robust F (RANSAC on the Sampson
+    distance, unless ``F`` is given), Hartley's homographies (:func:`hartley_homographies`), the right image
+    shifted along x so that the inlier matches have disparities >= 0, both scaled/centred together to fit the
+    frame (``alpha`` as in :func:`stereo_rectify`).
+
+    Args:
+        pts1, pts2: matches :math:`(N, 2)` in pixels; image_size: ``(width, height)``; F: optional :math:`(3, 3)`.
+        threshold: RANSAC Sampson threshold in px; min_matches: refuse below this many matches or inliers.
+        output_size: ``(H', W')`` (default: the image size).
+
+    Returns:
+        :class:`Rectification` with ``left``, ``right``, ``maps``, ``P1``, ``P2``, ``Q``, ``calib`` = None.
+
+    Raises:
+        DegenerateGeometryError: fewer than ``min_matches`` matches/inliers, or a degenerate F.
+    """
+    alpha = _check_alpha(alpha)
+    w, h = image_size
+    out_h, out_w = _output_size(output_size, h, w)
+    if (pts1 is None) != (pts2 is None):
+        raise StereoInputError("pts1, pts2: give both or neither")
+    if pts1.shape[0] < min_matches:
+        raise DegenerateGeometryError(f"pts1, pts2: {pts1.shape[0]} matches, need at least {min_matches} to "
+                                      "estimate F robustly (try a larger ratio or more textured images)")
+    p1, p2 = pts1.double(), pts2.double()
+    if F is None:
+        F, inliers = fundamental_robust(p1, p2, threshold=threshold, seed=seed)
+    else:
+        inliers = sampson_distance(p1, p2, F.double()) < max(threshold, 1e-9) ** 2
+    if int(inliers.sum()) < min_matches:
+        raise DegenerateGeometryError(f"pts1, pts2: only {int(inliers.sum())} inlier matches, need {min_matches}")
+    F = F.double()
+    H1, H2 = hartley_homographies(F, p1[inliers], p2[inliers], (w, h))
+    disp = apply_homography(H1, p1[inliers])[:, 0] - apply_homography(H2, p2[inliers])[:, 0]
+    shift = -float(torch.quantile(disp, 0.01))  # move the right image so that ~all inlier disparities are >= 0
+    H2 = torch.tensor([[1.0, 0, -shift], [0, 1.0, 0], [0, 0, 1.0]], dtype=torch.float64) @ H2
+    boxes = [_content_boxes([apply_homography(H, e) for e in _border_edges(w, h)]) for H in (H1, H2)]
+    s, ox, oy = _fit_to_frame(boxes, out_w, out_h, alpha)
+    S = torch.tensor([[s, 0, ox], [0, s, oy], [0, 0, 1.0]], dtype=torch.float64)
+    H1, H2 = S @ H1, S @ H2
+    disp = apply_homography(H1, p1[inliers])[:, 0] - apply_homography(H2, p2[inliers])[:, 0]
+    return Rectification(None, None, H1, H2, None, None, None, None, None, F=F, matches=(pts1, pts2),
+                         inliers=inliers, disparity_range=(float(torch.quantile(disp, 0.01)),
+                                                           float(torch.quantile(disp, 0.99))))
+
+
 def rectify_uncalibrated(left: torch.Tensor, right: torch.Tensor, pts1: torch.Tensor | None = None,
                          pts2: torch.Tensor | None = None, F: torch.Tensor | None = None, alpha: float = 1.0,
                          output_size: tuple[int, int] | None = None, ratio: float = 0.75, threshold: float = 1.0,
                          min_matches: int = 16, seed: int = 0) -> Rectification:
     """Rectify a pair with no calibration: SIFT matches + ratio test (:func:`stereonet.features.match_sift`,
-    unless ``pts1``/``pts2`` are given), robust F (RANSAC on Sampson distance, unless ``F`` is given), then
-    Hartley's homographies (:func:`hartley_homographies`). The right image is shifted along x so that the inlier
-    matches have disparities >= 0, and both are scaled/centred together to fit the frame (``alpha`` as in
-    :func:`rectify_calibrated`).
+    unless ``pts1``/``pts2`` are given), then :func:`stereo_rectify_uncalibrated` (robust F, Hartley's
+    homographies, disparities shifted to be >= 0) and a kornia ``warp_perspective`` of both images.
 
     Args:
         left, right: :math:`(B, C, H, W)`; the matching uses the first batch element.
@@ -424,39 +496,17 @@ def rectify_uncalibrated(left: torch.Tensor, right: torch.Tensor, pts1: torch.Te
         DegenerateGeometryError: fewer than ``min_matches`` matches/inliers, or a degenerate F.
     """
     left, right = check_image_pair(left, right)
-    alpha = _check_alpha(alpha)
     _, _, h, w = left.shape
-    out_h, out_w = _output_size(output_size, h, w)
     if (pts1 is None) != (pts2 is None):
         raise StereoInputError("pts1, pts2: give both or neither")
     if pts1 is None:
         from stereonet.features import match_sift
 
         pts1, pts2 = match_sift(left[:1], right[:1], ratio=ratio, min_matches=min_matches)
-    if pts1.shape[0] < min_matches:
-        raise DegenerateGeometryError(f"pts1, pts2: {pts1.shape[0]} matches, need at least {min_matches} to "
-                                      "estimate F robustly (try a larger ratio or more textured images)")
-    p1, p2 = pts1.double(), pts2.double()
-    if F is None:
-        F, inliers = fundamental_robust(p1, p2, threshold=threshold, seed=seed)
-    else:
-        from stereonet.geometry.epipolar import sampson_distance
-
-        inliers = sampson_distance(p1, p2, F.double()) < max(threshold, 1e-9) ** 2
-    if int(inliers.sum()) < min_matches:
-        raise DegenerateGeometryError(f"pts1, pts2: only {int(inliers.sum())} inlier matches, need {min_matches}")
-    F = F.double()
-    H1, H2 = hartley_homographies(F, p1[inliers], p2[inliers], (w, h))
-    disp = apply_homography(H1, p1[inliers])[:, 0] - apply_homography(H2, p2[inliers])[:, 0]
-    shift = -float(torch.quantile(disp, 0.01))  # move the right image so that ~all inlier disparities are >= 0
-    H2 = torch.tensor([[1.0, 0, -shift], [0, 1.0, 0], [0, 0, 1.0]], dtype=torch.float64) @ H2
-    boxes = [_content_boxes([apply_homography(H, e) for e in _border_edges(w, h)]) for H in (H1, H2)]
-    s, ox, oy = _fit_to_frame(boxes, out_w, out_h, alpha)
-    S = torch.tensor([[s, 0, ox], [0, s, oy], [0, 0, 1.0]], dtype=torch.float64)
-    H1, H2 = S @ H1, S @ H2
-    maps = (rectification_maps(H1, out_h, out_w, dtype=left.dtype), rectification_maps(H2, out_h, out_w,
-                                                                                       dtype=left.dtype))
-    l_img, r_img = _warp_pair(left, right, H1, H2, maps, (False, False), (out_h, out_w))
-    disp = apply_homography(H1, p1[inliers])[:, 0] - apply_homography(H2, p2[inliers])[:, 0]
-    return Rectification(l_img, r_img, H1, H2, None, None, None, None, maps, F=F, matches=(pts1, pts2),
-                         inliers=inliers, disparity_range=(float(disp.min()), float(disp.max())))
+    rect = stereo_rectify_uncalibrated(pts1, pts2, (w, h), F=F, alpha=alpha, output_size=output_size,
+                                       threshold=threshold, min_matches=min_matches, seed=seed)
+    out_h, out_w = _output_size(output_size, h, w)
+    rect.maps = (rectification_maps(rect.H1, out_h, out_w, dtype=left.dtype),
+                 rectification_maps(rect.H2, out_h, out_w, dtype=left.dtype))
+    rect.left, rect.right = _warp_pair(left, right, rect.H1, rect.H2, rect.maps, (False, False), (out_h, out_w))
+    return rect

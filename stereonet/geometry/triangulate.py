@@ -103,11 +103,11 @@ def reprojection_error(points: torch.Tensor, P: torch.Tensor, pixels: torch.Tens
         points :math:`(*, N, 3)`, P :math:`(*, 3, 4)`, pixels :math:`(*, N, 2)`.
 
     Returns:
-        :math:`(*, N)`; points on the camera plane get a very large finite error.
+        :math:`(*, N)`; points on the camera plane (|depth| < 1e-12) get a very large finite error.
     """
     proj = torch.cat([points, torch.ones_like(points[..., :1])], -1) @ P.transpose(-1, -2)  # *xNx3
     w = proj[..., 2:]
-    w = torch.where(w.abs() < 1e-300, torch.full_like(w, 1e-300), w)
+    w = torch.where(w.abs() < 1e-12, torch.where(w < 0, -1e-12, 1e-12).to(w.dtype), w)
     return torch.linalg.vector_norm(proj[..., :2] / w - pixels, dim=-1)
 
 
