@@ -1,1 +1,64 @@
-"""data_gen: procedurally rendered synthetic stereo pairs with exact ground truth."""
+"""data_gen: procedurally rendered synthetic stereo pairs with exact ground truth.
+
+Main entry points
+-----------------
+* :func:`render_pair` ``(seed, index, difficulty=2, height=256, width=512, rectified=True, supersample=2, ...)``
+  -> dict (images, disparities, occlusion/specular masks, depth, correspondences, calibration); a pure function
+  of ``(seed, index)`` and its options.
+* :class:`SyntheticStereo` ``(count, seed=0, difficulty=2, height=256, width=512, ...)`` — a torch Dataset
+  rendering on the fly; use :func:`collate` with a DataLoader (``Calibration`` objects are kept in lists).
+* :data:`MAX_DIFFICULTY` — the curriculum runs 0 (few fronto-parallel textured planes, small disparity, clean)
+  to MAX_DIFFICULTY (many slanted/curved objects, disparity up to 192 at width 512, hard textures, speculars,
+  photometric differences). Disparity ranges scale with the image width and stay below ``width / 2``.
+* ``python -m data_gen --out DIR --count N --seed S [--difficulty K] [--unrectified]`` writes the Middlebury
+  2014 layout; ``python -m data_gen --bench`` measures pairs per second on one core.
+
+Building blocks (for other renderers, e.g. active stereo with a projector)
+------------------------------------------------------------------------
+Units are millimetres; the left camera is the world frame.
+
+* :class:`Camera` ``(K, R, t, size=(width, height), dist=None)`` — pinhole, ``X_cam = R X + t``, OpenCV
+  distortion ``(k1, k2, p1, p2, k3)``; ``project(points (N, 3)) -> (pixels (N, 2), depth (N,))``,
+  ``center``, ``grid_rays(supersample)``.
+* :func:`sample_rig` ``(rng, height, width, rectified=True, baseline=None, distortion=None)`` -> :class:`Rig`
+  (``left``, ``right`` cameras, ``baseline``).
+* :func:`sample_scene` ``(rng, difficulty, rig, max_disp, num_objects=None)`` -> :class:`Scene`
+  (``objects``: primitives :class:`Plane`, :class:`PlanarPatch`, :class:`Sphere`, :class:`Cylinder`, each with a
+  :class:`Material`; ``light_dir``; ``ambient``). Objects can also be built by hand: ``Scene([Plane(...), ...])``.
+* :func:`raycast` ``(scene, origins (N, 3) | (3,), dirs (N, 3))`` -> :class:`RayHits`
+  ``(t (N,), ids (N,), points (N, 3), normals (N, 3), uv (N, 2))``; ``t = inf``, ``ids = -1`` on a miss.
+* :func:`visible_from` ``(scene, camera, points)`` -> bool (N,): seen by the camera (shadow/occlusion tests,
+  e.g. whether a projector illuminates a point).
+* :func:`shade` ``(scene, ids, points, normals, albedo, eye, specular=True, extra_light_fn=None)`` and
+  :func:`render_view` ``(scene, camera, supersample=2, specular=True, extra_light_fn=None)`` -> dict with
+  ``image (3, H, W)`` and centre-ray ``depth``, ``ids``, ``points``, ``normals``, ``specular``.
+  ``extra_light_fn(points (N, 3), normals (N, 3), ids (N,)) -> (N,) | (N, 3)`` is extra irradiance added to
+  the diffuse term (multiplied by the albedo): a projector pattern is ``pattern(projector.project(points))``
+  times ``max(0, n . l_p)``, masked by ``visible_from(scene, projector, points)``.
+* :func:`apply_camera_response` (blur, gain/bias/gamma, noise) and :class:`Material` ``.albedo(uv)``
+  (textures: dead-leaves, 1/f noise, Voronoi bank textures; stripes, grids, checkers, weak, flat).
+"""
+
+from data_gen.camera import Camera, GridRays, PointRays
+from data_gen.dataset import SyntheticStereo, collate
+from data_gen.pair import apply_camera_response, calibration_of, render_pair
+from data_gen.primitives import Cylinder, PlanarPatch, Plane, Primitive, Sphere
+from data_gen.render import RayHits, raycast, raycast_grid, render_view, shade, visible_from
+from data_gen.scene import (  # noqa: I001
+                            DIFFICULTY,
+                            MAX_DIFFICULTY,
+                            Rig,
+                            Scene,
+                            check_difficulty,
+                            default_max_disp,
+                            sample_rig,
+                            sample_scene,
+)
+from data_gen.textures import Material
+
+__all__ = [
+    "DIFFICULTY", "MAX_DIFFICULTY", "Camera", "Cylinder", "GridRays", "Material", "PlanarPatch", "Plane",
+    "PointRays", "Primitive", "RayHits", "Rig", "Scene", "Sphere", "SyntheticStereo", "apply_camera_response",
+    "calibration_of", "check_difficulty", "collate", "default_max_disp", "raycast", "raycast_grid",
+    "render_pair", "render_view", "sample_rig", "sample_scene", "shade", "visible_from",
+]

@@ -1,0 +1,179 @@
+"""Stereo pairs with exact ground truth: :func:`render_pair` is a pure function of ``(seed, index)``."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, shade, visible_from
+from data_gen.scene import (
+    DIFFICULTY,
+    Rig,
+    Scene,
+    check_difficulty,
+    default_max_disp,
+    sample_rig,
+    sample_scene,
+)
+
+
+def _check_int(value: object, name: str, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or int(value) < minimum:
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def check_render_args(seed, index, difficulty, height, width, supersample, max_disp, baseline,
+                      num_objects) -> tuple[int, int, int, int, int, int, int]:
+    """Validate :func:`render_pair` arguments; errors name the parameter. Returns the normalized ints
+    ``(seed, index, difficulty, height, width, supersample, max_disp)``."""
+    seed = _check_int(seed, "seed", 0)
+    index = _check_int(index, "index", 0)
+    difficulty = check_difficulty(difficulty)
+    height = _check_int(height, "height", 8)
+    width = _check_int(width, "width", 8)
+    supersample = _check_int(supersample, "supersample", 1)
+    if max_disp is None:
+        max_disp = default_max_disp(difficulty, width)
+    elif isinstance(max_disp, bool) or not isinstance(max_disp, int | np.integer) or max_disp < 1:
+        raise ValueError(f"max_disp: expected a positive integer disparity range, got {max_disp!r}")
+    elif max_disp >= width / 2:
+        raise ValueError(f"max_disp: the disparity range must stay below half the image width "
+                         f"(width={width}, so max_disp < {width / 2:g}), got {max_disp}")
+    if baseline is not None and not (isinstance(baseline, int | float) and math.isfinite(baseline) and baseline > 0):
+        raise ValueError(f"baseline: expected a positive baseline in mm, got {baseline!r}")
+    if num_objects is not None:
+        _check_int(num_objects, "num_objects", 1)
+    return seed, index, difficulty, height, width, supersample, int(max_disp)
+
+
+def _photometric(rng: np.random.Generator, level: dict) -> dict:
+    """Per-camera response: gains (3,), bias, gamma, blur sigma, noise sigma (all sampled, used or not)."""
+    p = level["photometric"]
+    return dict(gain=(1 + rng.uniform(-p, p)) * (1 + rng.uniform(-p / 3, p / 3, 3)),
+                bias=rng.uniform(-p / 3, p / 3), gamma=1 + rng.uniform(-1.5 * p, 1.5 * p),
+                blur=rng.uniform(0.0, level["blur"]), noise=level["noise"] * rng.uniform(0.5, 1.0),
+                noise_seed=int(rng.integers(2 ** 62)))
+
+
+def _gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Separable Gaussian blur of ``img`` :math:`(C, H, W)` (reflect padding)."""
+    if sigma < 0.05:
+        return img
+    r = max(1, int(math.ceil(2.5 * sigma)))
+    x = torch.arange(-r, r + 1, dtype=img.dtype)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    k = k / k.sum()
+    c = img.shape[0]
+    out = F.pad(img[None], (r, r, r, r), mode="reflect")
+    out = F.conv2d(out, k.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
+    out = F.conv2d(out, k.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
+    return out[0]
+
+
+def apply_camera_response(img: torch.Tensor, params: dict, photometric: bool = True, blur: bool = True,
+                          noise: bool = True) -> torch.Tensor:
+    """Optics and sensor: blur, gain/bias/gamma, additive Gaussian noise; :math:`(3, H, W)` in/out, [0, 1]."""
+    if blur:
+        img = _gaussian_blur(img, params["blur"])
+    if photometric:
+        gain = torch.as_tensor(params["gain"], dtype=img.dtype)[:, None, None]
+        img = (img * gain + params["bias"]).clamp(0.0, 1.0) ** params["gamma"]
+    if noise and params["noise"] > 0:
+        g = torch.Generator().manual_seed(params["noise_seed"])
+        img = img + params["noise"] * torch.randn(img.shape, generator=g, dtype=img.dtype)
+    return img.clamp(0.0, 1.0)
+
+
+def calibration_of(rig: Rig, max_disp: int):
+    """The :class:`stereonet.types.Calibration` of a rig (units: mm)."""
+    from stereonet.types import Calibration
+
+    return Calibration(rig.left.K, rig.right.K, rig.right.R, rig.right.t, image_size=rig.left.size,
+                       dist1=rig.left.dist, dist2=rig.right.dist, doffs=0.0, ndisp=int(max_disp))
+
+
+def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, torch.Tensor]:
+    """Disparities, correspondences, occlusion and specular masks from the centre-ray geometry."""
+    cam_l, cam_r = rig.left, rig.right
+    w, h = cam_l.size
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
+                            indexing="ij")
+    ids_l = left["ids"].reshape(-1)
+    hit_l = ids_l >= 0
+    pts_l = left["points"]
+    corr, z_r = cam_r.project(pts_l)  # HWx2 right pixel of each left pixel's surface point
+    disp = xs.reshape(-1) - corr[:, 0]
+    visible = visible_from(scene, cam_r, pts_l) & hit_l
+    valid = hit_l & (z_r > 0)
+    if rig.rectified:
+        valid &= disp > 0
+    # disparity of the right view, right-referenced: x_left = x_right + d_right
+    ids_r = right["ids"].reshape(-1)
+    corr_l, z_l = cam_l.project(right["points"])
+    disp_r = corr_l[:, 0] - xs.reshape(-1)
+    valid_r = (ids_r >= 0) & (z_l > 0)
+    # specular mask: shiny in the left view, or at the same surface point seen from the right camera
+    albedo = torch.ones_like(pts_l)
+    _, spec_r_at_l = shade(scene, ids_l, pts_l, left["normals"], albedo, cam_r.center)
+    specular = (left["specular"].reshape(-1) > SPECULAR_MASK_THRESHOLD) | (spec_r_at_l > SPECULAR_MASK_THRESHOLD)
+
+    def img(x, dtype=torch.float32):
+        return x.reshape(1, h, w).to(dtype)
+
+    zero = torch.zeros((), dtype=torch.float64)
+    return dict(
+        disparity=img(torch.where(valid, disp, zero)), valid=img(valid, torch.bool),
+        disparity_right=img(torch.where(valid_r, disp_r, zero)), valid_right=img(valid_r, torch.bool),
+        occlusion=img(~visible & valid, torch.bool), depth=img(torch.where(hit_l, left["depth"].reshape(-1), zero)),
+        specular=img(specular & hit_l, torch.bool),
+        correspondence=torch.where(valid[:, None], corr, zero).T.reshape(2, h, w).float(),
+    )
+
+
+def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, width: int = 512,
+                rectified: bool = True, supersample: int = 2, *, num_objects: int | None = None,
+                max_disp: int | None = None, baseline: float | None = None, distortion: bool | None = None,
+                noise: bool = True, photometric: bool = True, blur: bool = True, specular: bool = True) -> dict:
+    """Render one synthetic stereo pair with exact ground truth; a pure function of its arguments.
+
+    Args:
+        seed, index: non-negative ints; together they seed every random choice (same pair in any process).
+        difficulty: 0..MAX_DIFFICULTY curriculum level; height, width: image size in pixels.
+        rectified: rectified rig (R = I, t = (-B, 0, 0), K1 = K2) or a random unrectified one.
+        supersample: rays per pixel side for anti-aliasing (ground truth uses the pixel-centre ray).
+        num_objects: objects in front of the background (default from the difficulty), >= 1.
+        max_disp: disparity range (default: the difficulty's, scaled with width); must be < width / 2.
+        baseline: in mm (default random in [60, 300]); distortion: unrectified rigs only (None = random).
+        noise, photometric, blur, specular: switch the corresponding effects off (the scene is unchanged).
+
+    Returns:
+        dict with ``left``, ``right`` float32 :math:`(3, H, W)` in [0, 1]; ``disparity``, ``disparity_right``,
+        ``depth`` float32 :math:`(1, H, W)` (left disparity ``x_l - x_r`` of each left pixel's surface point;
+        for unrectified rigs the horizontal component of the correspondence); ``valid``, ``valid_right``,
+        ``occlusion`` (True = left pixel not seen by the right camera), ``specular`` bool :math:`(1, H, W)`;
+        ``correspondence`` float32 :math:`(2, H, W)` (right-image pixel (x, y) of each left pixel);
+        ``calib`` (:class:`stereonet.types.Calibration`, mm); ``name``; ``max_disp``; ``difficulty``;
+        ``scene`` and ``rig`` (the objects used).
+    """
+    seed, index, difficulty, height, width, supersample, max_disp = check_render_args(
+        seed, index, difficulty, height, width, supersample, max_disp, baseline, num_objects)
+    rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
+    rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
+    scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)
+    level = DIFFICULTY[difficulty]
+    response = [_photometric(rng, level), _photometric(rng, level)]
+    views = [render_view(scene, cam, supersample, specular=specular) for cam in (rig.left, rig.right)]
+    gt = _ground_truth(scene, rig, views[0], views[1])
+    if not specular:
+        gt["specular"].zero_()
+    images = [apply_camera_response(v["image"], r, photometric, blur, noise) for v, r in zip(views, response)]
+    kind = "rect" if rectified else "unrect"
+    out = dict(left=images[0], right=images[1], calib=calibration_of(rig, max_disp), max_disp=max_disp,
+               name=f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}", difficulty=difficulty, scene=scene, rig=rig)
+    out.update(gt)
+    return out
+

@@ -1,0 +1,258 @@
+"""Vectorized ray casting and shading of :class:`~data_gen.scene.Scene` objects from :class:`Camera` s.
+
+* :func:`raycast_grid` — first hits of a camera's sample grid; each object is tested only on the block of
+  samples inside its projected bounding box, all rays of the block at once.
+* :func:`raycast` — first hits of arbitrary rays ``origins (N, 3) | (3,)``, ``dirs (N, 3)``.
+* :func:`shade` — Lambertian + Blinn-Phong shading of hit points for one viewpoint, plus an optional extra
+  light term (e.g. a projector pattern).
+* :func:`render_view` — supersampled radiance image plus exact centre-ray geometry of one camera.
+* :func:`visible_from` — which world points a camera sees (not hidden by a nearer surface).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from data_gen.camera import Camera, GridRays, PointRays
+from data_gen.scene import Scene
+
+SPECULAR_MASK_THRESHOLD = 0.02  # specular radiance above which a pixel counts as view-dependent
+
+
+class RayHits(NamedTuple):
+    """First hits of N rays: ``t (N,)`` (inf = miss), ``ids (N,)`` long (-1 = miss), ``points (N, 3)``,
+    ``normals (N, 3)`` (unit, facing the ray), ``uv (N, 2)`` (surface coordinates, scene units)."""
+
+    t: torch.Tensor
+    ids: torch.Tensor
+    points: torch.Tensor
+    normals: torch.Tensor
+    uv: torch.Tensor
+
+
+def _object_ranges(scene: Scene, grid: GridRays, camera: Camera) -> list[tuple[int, int, int, int] | None]:
+    ranges = []
+    for obj in scene.objects:
+        bs = obj.bounding_sphere()
+        if bs is None:
+            ranges.append((0, grid.shape[0], 0, grid.shape[1]))
+        else:
+            ranges.append(grid.index_range(camera.pixel_bbox(bs[0], bs[1])))
+    return ranges
+
+
+def raycast_grid(scene: Scene, grid: GridRays) -> tuple[torch.Tensor, torch.Tensor, list]:
+    """First hits of every ray of ``grid``.
+
+    Returns:
+        t :math:`(H', W')` ray parameter (= depth in the grid camera's frame; inf = miss), ids :math:`(H', W')`
+        long object index (-1 = miss), and the per-object sample ranges used (for :func:`surface_fields`).
+    """
+    t_best = torch.full(grid.shape, math.inf, dtype=grid.dtype)
+    ids = torch.full(grid.shape, -1, dtype=torch.long)
+    ranges = _object_ranges(scene, grid, grid.camera)
+    for k, (obj, rng) in enumerate(zip(scene.objects, ranges)):
+        if rng is None:
+            continue
+        r0, r1, c0, c1 = rng
+        t = obj.intersect(grid.block(r0, r1, c0, c1))
+        tb = t_best[r0:r1, c0:c1]
+        closer = t < tb
+        tb.copy_(torch.where(closer, t, tb))
+        ids[r0:r1, c0:c1].masked_fill_(closer, k)
+    return t_best, ids, ranges
+
+
+def surface_fields(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Tensor, ranges: list,
+                   with_albedo: bool = True) -> dict[str, torch.Tensor]:
+    """Points, normals, uv (and albedo) of the hits found by :func:`raycast_grid`, flattened to :math:`(H' W', k)`.
+
+    Misses get zeros (their ``ids`` are -1).
+    """
+    h, w = grid.shape
+    n = h * w
+    out = {"points": torch.zeros(n, 3, dtype=grid.dtype), "normals": torch.zeros(n, 3, dtype=grid.dtype),
+           "uv": torch.zeros(n, 2, dtype=grid.dtype)}
+    if with_albedo:
+        out["albedo"] = torch.zeros(n, 3, dtype=grid.dtype)
+    origin = torch.as_tensor(grid.origin, dtype=grid.dtype)
+    # angular spacing of neighbouring samples (radians, at the image centre) for texture footprints
+    spacing = float(abs(grid.xs_np[1] - grid.xs_np[0]) if len(grid.xs_np) > 1 else 1.0) / float(grid.camera.K[0, 0])
+    for k, (obj, rng) in enumerate(zip(scene.objects, ranges)):
+        if rng is None:
+            continue
+        r0, r1, c0, c1 = rng
+        nz = (ids[r0:r1, c0:c1] == k).nonzero()
+        if nz.numel() == 0:
+            continue
+        rows = nz[:, 0] + r0
+        cols = nz[:, 1] + c0
+        flat = rows * w + cols
+        d = grid.dirs_at(rows, cols)
+        p = origin + t[rows, cols][:, None] * d
+        normals, uv = obj.surface(p, d)
+        out["points"][flat] = p
+        out["normals"][flat] = normals
+        out["uv"][flat] = uv
+        if with_albedo:
+            dist = t[rows, cols] * torch.linalg.norm(d, dim=-1)
+            cos = (normals * d).sum(-1).abs() / torch.linalg.norm(d, dim=-1)
+            footprint = dist * spacing / cos.clamp(min=0.05)  # one sample's size on the surface (mm)
+            out["albedo"][flat] = obj.material.albedo(uv, footprint)
+    return out
+
+
+def _first_hits(scene: Scene, rays: PointRays, pixels: torch.Tensor | None = None,
+                camera: Camera | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Nearest hit ``(t, ids)`` of explicit rays; with ``pixels`` :math:`(N, 2)` of the rays in ``camera``,
+    each object is tested only on the rays inside its projected bounding box."""
+    n = rays.dirs.shape[0]
+    t_best = torch.full((n,), math.inf, dtype=rays.dirs.dtype)
+    ids = torch.full((n,), -1, dtype=torch.long)
+    for k, obj in enumerate(scene.objects):
+        bs = obj.bounding_sphere()
+        if pixels is not None and camera is not None and bs is not None:
+            bbox = camera.pixel_bbox(bs[0], bs[1])
+            if bbox is None:
+                continue
+            x0, x1, y0, y1 = bbox
+            sel = ((pixels[:, 0] >= x0) & (pixels[:, 0] <= x1) & (pixels[:, 1] >= y0) & (pixels[:, 1] <= y1)).nonzero()[:, 0]
+            if sel.numel() == 0:
+                continue
+            t = obj.intersect(rays.subset(sel))
+            closer = t < t_best[sel]
+            t_best[sel[closer]] = t[closer]
+            ids[sel[closer]] = k
+        else:
+            t = obj.intersect(rays)
+            closer = t < t_best
+            t_best = torch.where(closer, t, t_best)
+            ids.masked_fill_(closer, k)
+    return t_best, ids
+
+
+def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor) -> RayHits:
+    """First hits of arbitrary rays (every object against every ray).
+
+    Args:
+        origins: :math:`(N, 3)` or one shared origin :math:`(3,)`; dirs: :math:`(N, 3)` (any length; ``t`` is
+            in units of ``|dirs|``).
+    """
+    if dirs.dim() != 2 or dirs.shape[1] != 3:
+        raise ValueError(f"dirs: expected shape (N, 3), got {tuple(dirs.shape)}")
+    origins = torch.as_tensor(origins, dtype=dirs.dtype)
+    if origins.shape not in ((3,), dirs.shape):
+        raise ValueError(f"origins: expected shape (3,) or {tuple(dirs.shape)}, got {tuple(origins.shape)}")
+    rays = PointRays(origins, dirs)
+    t, ids = _first_hits(scene, rays)
+    n = dirs.shape[0]
+    points = torch.zeros(n, 3, dtype=dirs.dtype)
+    normals = torch.zeros(n, 3, dtype=dirs.dtype)
+    uv = torch.zeros(n, 2, dtype=dirs.dtype)
+    hit = ids >= 0
+    o = origins.expand_as(dirs)
+    points[hit] = o[hit] + t[hit][:, None] * dirs[hit]
+    for k, obj in enumerate(scene.objects):
+        sel = (ids == k).nonzero()[:, 0]
+        if sel.numel():
+            normals[sel], uv[sel] = obj.surface(points[sel], dirs[sel])
+    return RayHits(t, ids, points, normals, uv)
+
+
+def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: float = 1e-5) -> torch.Tensor:
+    """Bool :math:`(N,)`: True where world ``points`` :math:`(N, 3)` are seen by ``camera``: in front of it,
+    projecting inside its image, and not hidden by a nearer surface of ``scene``."""
+    pix, z = camera.project(points)
+    w, h = camera.size
+    inside = (z > 0) & (pix[:, 0] >= -0.5) & (pix[:, 0] <= w - 0.5) & (pix[:, 1] >= -0.5) & (pix[:, 1] <= h - 0.5)
+    centre = torch.as_tensor(camera.center, dtype=points.dtype)
+    rays = PointRays(camera.center, points - centre)  # the point itself is at t = 1
+    t, _ = _first_hits(scene, rays, pix, camera)
+    return inside & ~(t < 1 - rel_eps)
+
+
+def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.Tensor, albedo: torch.Tensor,
+          eye: np.ndarray, specular: bool = True,
+          extra_light_fn: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+          ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Radiance towards the camera at ``eye`` :math:`(3,)` of N hit points.
+
+    ``rgb = albedo * (ambient + (1 - ambient) max(0, n . l) + extra) + specular``, with Blinn-Phong
+    ``specular = ks max(0, n . h)^shininess`` (h = half vector of light and view directions: it depends on
+    the viewpoint, so it differs between the two cameras).
+
+    Args:
+        ids :math:`(N,)` object ids (-1 = miss: black); points, normals, albedo :math:`(N, 3)`.
+        extra_light_fn: ``fn(points (N, 3), normals (N, 3), ids (N,)) -> (N,) or (N, 3)`` extra irradiance
+            added to the diffuse term (multiplied by the albedo), e.g. a projector's pattern.
+
+    Returns:
+        rgb :math:`(N, 3)` (not clipped), specular radiance :math:`(N,)`.
+    """
+    dtype = points.dtype
+    light = torch.as_tensor(scene.light_dir, dtype=dtype)
+    lambert = (normals @ light).clamp_(min=0.0)
+    irradiance = scene.ambient + (1 - scene.ambient) * lambert
+    if extra_light_fn is not None:
+        extra = extra_light_fn(points, normals, ids)
+        irradiance = irradiance[:, None] + (extra if extra.dim() == 2 else extra[:, None])
+    else:
+        irradiance = irradiance[:, None]
+    rgb = albedo * irradiance
+    spec = torch.zeros_like(lambert)
+    ks_table = np.array([o.material.specular for o in scene.objects] + [0.0])
+    if specular and np.any(ks_table > 0):
+        ks = torch.as_tensor(ks_table, dtype=dtype)[ids]  # id -1 reads the trailing 0
+        shin = torch.as_tensor(np.array([o.material.shininess for o in scene.objects] + [1.0]), dtype=dtype)[ids]
+        shiny = (ks > 0).nonzero()[:, 0]
+        if shiny.numel():
+            view = torch.as_tensor(eye, dtype=dtype) - points[shiny]
+            half = view / torch.linalg.norm(view, dim=-1, keepdim=True).clamp(min=1e-12) + light
+            half = half / torch.linalg.norm(half, dim=-1, keepdim=True).clamp(min=1e-12)
+            ndh = (normals[shiny] * half).sum(-1).clamp(min=0.0)
+            spec[shiny] = ks[shiny] * ndh ** shin[shiny] * (lambert[shiny] > 0)
+        rgb = rgb + spec[:, None]
+    rgb = torch.where((ids >= 0)[:, None], rgb, torch.zeros_like(rgb))
+    return rgb, spec
+
+
+def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bool = True,
+                extra_light_fn: Callable | None = None, geometry: bool = True,
+                dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
+    """Render one camera.
+
+    The image averages ``supersample x supersample`` rays per pixel; the geometry (when ``geometry``) comes
+    from one float64 ray through each pixel centre, so it is exact at pixel centres.
+
+    Returns a dict with ``image`` :math:`(3, H, W)` radiance clipped to [0, 1], and when ``geometry``:
+    ``depth`` :math:`(H, W)` (z in this camera's frame, inf = miss), ``ids`` :math:`(H, W)` long,
+    ``points`` and ``normals`` :math:`(H W, 3)` float64 (world frame, centre rays), ``specular`` :math:`(H, W)`
+    specular radiance at the centre rays.
+    """
+    s = int(supersample)
+    if s < 1:
+        raise ValueError(f"supersample: expected an integer >= 1, got {supersample}")
+    w, h = camera.size
+    grid = camera.grid_rays(s, dtype)
+    t, ids, ranges = raycast_grid(scene, grid)
+    fields = surface_fields(scene, grid, t, ids, ranges)
+    rgb, _ = shade(scene, ids.reshape(-1), fields["points"], fields["normals"], fields["albedo"], camera.center,
+                   specular, extra_light_fn)
+    img = rgb.reshape(h * s, w * s, 3).permute(2, 0, 1)  # 3xH'xW'
+    if s > 1:
+        img = F.avg_pool2d(img[None], s)[0]
+    out = {"image": img.clamp(0.0, 1.0).contiguous()}
+    if geometry:
+        grid1 = camera.grid_rays(1, torch.float64)
+        t1, ids1, ranges1 = raycast_grid(scene, grid1)
+        f1 = surface_fields(scene, grid1, t1, ids1, ranges1, with_albedo=False)
+        albedo = torch.ones_like(f1["points"])
+        _, spec = shade(scene, ids1.reshape(-1), f1["points"], f1["normals"], albedo, camera.center, specular)
+        out.update(depth=t1, ids=ids1, points=f1["points"], normals=f1["normals"], specular=spec.reshape(h, w))
+    return out

@@ -1,0 +1,296 @@
+"""Scene and rig sampling: the difficulty curriculum, random rigs (rectified or not) and random scenes.
+
+Units are millimetres. The left camera is the world frame. Scenes are laid out in *disparity space* of the
+left camera (``d = f B / z``): every plane is an affine function of the pixel coordinates there, which makes it
+easy to keep every ground-truth disparity inside ``[0, max_disp]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from data_gen.camera import Camera
+from data_gen.primitives import Cylinder, PlanarPatch, Plane, Primitive, Sphere
+from data_gen.textures import BANK_COUNT, Material
+
+MAX_DIFFICULTY = 4
+REFERENCE_WIDTH = 512  # disparity ranges below are for this width and scale linearly with the image width
+
+# One row per difficulty level. max_disp at REFERENCE_WIDTH; objects = (min, max) count; slant in degrees;
+# kinds = probabilities of (patch, sphere, cylinder); textures = probabilities over Material kinds;
+# photometric = strength of per-camera gain/bias/gamma differences; noise = sensor noise std; blur = max
+# Gaussian sigma (pixels); walls = probabilities of (floor, side wall); spec = probability of a shiny object;
+# texel_px = texel size range in pixels; size = object radius range as a fraction of min(H, W); spread = range
+# of object centres as a fraction of the image size.
+DIFFICULTY: list[dict] = [
+    dict(max_disp=32, objects=(2, 4), slant=0.0, kinds=(1.0, 0.0, 0.0), bg_slope=0.0, walls=(0.0, 0.0),
+         textures=dict(bank=0.6, bank_mix=0.4), spec=0.0, photometric=0.0, noise=0.002, blur=0.0,
+         texel_px=(1.0, 2.5), shapes=("rectangle", "ellipse"), size=(0.12, 0.35), spread=(0.1, 0.9)),
+    dict(max_disp=64, objects=(3, 6), slant=35.0, kinds=(0.8, 0.2, 0.0), bg_slope=0.4, walls=(0.3, 0.0),
+         textures=dict(bank=0.45, bank_mix=0.35, stripes=0.08, grid=0.06, checker=0.06), spec=0.0,
+         photometric=0.02, noise=0.004, blur=0.3, texel_px=(0.9, 2.5),
+         shapes=("rectangle", "ellipse", "polygon", "blob"), size=(0.06, 0.3), spread=(0.0, 1.0)),
+    dict(max_disp=96, objects=(5, 10), slant=60.0, kinds=(0.6, 0.25, 0.15), bg_slope=0.7, walls=(0.5, 0.3),
+         textures=dict(bank=0.35, bank_mix=0.3, stripes=0.08, grid=0.06, checker=0.06, weak=0.1, flat=0.05),
+         spec=0.15, photometric=0.05, noise=0.006, blur=0.5, texel_px=(0.8, 3.0),
+         shapes=("rectangle", "ellipse", "polygon", "blob"), size=(0.04, 0.3), spread=(-0.1, 1.1)),
+    dict(max_disp=128, objects=(8, 14), slant=70.0, kinds=(0.55, 0.25, 0.2), bg_slope=0.9, walls=(0.5, 0.4),
+         textures=dict(bank=0.3, bank_mix=0.25, stripes=0.1, grid=0.07, checker=0.05, weak=0.15, flat=0.08),
+         spec=0.3, photometric=0.1, noise=0.01, blur=0.7, texel_px=(0.7, 3.5),
+         shapes=("rectangle", "ellipse", "polygon", "blob"), size=(0.04, 0.3), spread=(-0.1, 1.1)),
+    dict(max_disp=192, objects=(10, 20), slant=80.0, kinds=(0.5, 0.25, 0.25), bg_slope=1.2, walls=(0.6, 0.5),
+         textures=dict(bank=0.25, bank_mix=0.2, stripes=0.14, grid=0.08, checker=0.06, weak=0.17, flat=0.1),
+         spec=0.4, photometric=0.15, noise=0.015, blur=0.9, texel_px=(0.6, 4.0),
+         shapes=("rectangle", "ellipse", "polygon", "blob"), size=(0.04, 0.3), spread=(-0.1, 1.1)),
+]
+
+
+def check_difficulty(difficulty: object) -> int:
+    """Return ``difficulty`` as an int in ``0..MAX_DIFFICULTY`` or raise naming the parameter."""
+    if isinstance(difficulty, bool) or not isinstance(difficulty, int | np.integer):
+        raise TypeError(f"difficulty: expected an integer in 0..{MAX_DIFFICULTY}, got {difficulty!r}")
+    if not 0 <= int(difficulty) <= MAX_DIFFICULTY:
+        raise ValueError(f"difficulty: expected an integer in 0..{MAX_DIFFICULTY}, got {difficulty}")
+    return int(difficulty)
+
+
+def default_max_disp(difficulty: int, width: int) -> int:
+    """Disparity range of a difficulty level, scaled with the image width and kept below ``width / 2``."""
+    d = DIFFICULTY[check_difficulty(difficulty)]["max_disp"] * width / REFERENCE_WIDTH
+    return int(max(2, min(round(d), (width - 1) // 2)))
+
+
+@dataclass
+class Rig:
+    """Two cameras: ``left`` (the world frame, R = I, t = 0) and ``right`` (``X_r = R X_l + t``)."""
+
+    left: Camera
+    right: Camera
+    baseline: float
+    rectified: bool
+
+    @property
+    def focal(self) -> float:
+        return float(self.left.K[0, 0])
+
+
+@dataclass
+class Scene:
+    """A renderable scene.
+
+    Attributes:
+        objects: primitives; an object's id is its index here (background walls come first).
+        light_dir: unit vector from surfaces towards a directional light :math:`(3,)`.
+        ambient: ambient fraction of the Lambertian term in [0, 1].
+        max_disp: disparity bound the scene was built for (left camera, ``f B / z``).
+    """
+
+    objects: list[Primitive]
+    light_dir: np.ndarray = field(default_factory=lambda: np.array([0.0, -0.5, -1.0]) / math.sqrt(1.25))
+    ambient: float = 0.35
+    max_disp: int = 0
+    num_background: int = 1
+
+
+def _rotation(axis_angle: np.ndarray) -> np.ndarray:
+    theta = float(np.linalg.norm(axis_angle))
+    if theta < 1e-15:
+        return np.eye(3)
+    k = axis_angle / theta
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(theta) * Kx + (1 - math.cos(theta)) * Kx @ Kx
+
+
+def sample_rig(rng: np.random.Generator, height: int, width: int, rectified: bool = True,
+               baseline: float | None = None, distortion: bool | None = None) -> Rig:
+    """A random stereo rig; ``baseline`` in mm (random in [60, 300] if None).
+
+    Rectified: identical K, R = I, t = (-B, 0, 0). Unrectified: a small random rotation (<= 2.5 deg),
+    off-axis translation of length B, a different K2, and (``distortion`` True, or None with probability 1/2)
+    radial distortion ``k1, k2`` on both cameras.
+    """
+    f = width * rng.uniform(0.8, 1.25)
+    cx = (width - 1) / 2 + rng.uniform(-0.03, 0.03) * width
+    cy = (height - 1) / 2 + rng.uniform(-0.03, 0.03) * height
+    B = rng.uniform(60.0, 300.0) if baseline is None else float(baseline)
+    K1 = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    left = Camera(K1, np.eye(3), np.zeros(3), (width, height))
+    if rectified:
+        return Rig(left, Camera(K1.copy(), np.eye(3), np.array([-B, 0.0, 0.0]), (width, height)), B, True)
+    axis = rng.normal(size=3)
+    R = _rotation(axis / np.linalg.norm(axis) * math.radians(rng.uniform(0.5, 2.5)))
+    c_r = np.array([1.0, rng.uniform(-0.06, 0.06), rng.uniform(-0.06, 0.06)])
+    c_r *= B / np.linalg.norm(c_r)
+    f2 = f * rng.uniform(0.95, 1.05)
+    K2 = np.array([[f2, 0.0, cx + rng.uniform(-0.04, 0.04) * width],
+                   [0.0, f2, cy + rng.uniform(-0.03, 0.03) * height], [0.0, 0.0, 1.0]])
+    use_dist = bool(rng.random() < 0.5) if distortion is None else bool(distortion)
+    d1 = np.array([rng.uniform(-0.12, 0.08), rng.uniform(-0.03, 0.03), 0.0, 0.0, 0.0])
+    d2 = np.array([rng.uniform(-0.12, 0.08), rng.uniform(-0.03, 0.03), 0.0, 0.0, 0.0])
+    left = Camera(K1, np.eye(3), np.zeros(3), (width, height), d1 if use_dist else None)
+    right = Camera(K2, R, -R @ c_r, (width, height), d2 if use_dist else None)
+    return Rig(left, right, B, False)
+
+
+def disparity_plane(rig: Rig, alpha: float, beta: float, d_centre: float, roll: float,
+                    material: Material) -> Plane:
+    """The plane whose left disparity is ``d(x, y) = d_centre + alpha (x - cx) + beta (y - cy)``."""
+    K = rig.left.K
+    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+    v = np.array([alpha * f, beta * f, d_centre])  # d = v . (xn, yn, 1)
+    n = v / np.linalg.norm(v)
+    k = f * rig.baseline / np.linalg.norm(v)  # plane n . X = k, depth z = f B / d
+    del cx, cy
+    return Plane(n * k, n, roll=roll, material=material)
+
+
+def _choice(rng: np.random.Generator, probs: dict[str, float]) -> str:
+    names = list(probs)
+    p = np.array([probs[n] for n in names], dtype=np.float64)
+    return names[int(rng.choice(len(names), p=p / p.sum()))]
+
+
+def sample_material(rng: np.random.Generator, level: dict, texel_mm_per_px: float) -> Material:
+    """A random material for a surface where one pixel covers ``texel_mm_per_px`` scene units."""
+    kind = _choice(rng, level["textures"])
+    sat = rng.uniform(0.0, 1.0) ** 1.5
+    hue0, hue1 = rng.random(3), rng.random(3)
+    grey0, grey1 = rng.uniform(0.0, 0.35), rng.uniform(0.6, 1.0)
+    c0 = (1 - sat) * grey0 + sat * hue0 * grey0 * 2
+    c1 = (1 - sat) * grey1 + sat * (0.4 + 0.6 * hue1) * grey1
+    c2 = rng.uniform(-0.5, 0.5, 3) * rng.uniform(0.2, 1.0)
+    lo, hi = level["texel_px"]
+    texel_px = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+    mat = Material(kind=kind, colors=np.stack([c0, c1, c2]), texel_mm=texel_px * texel_mm_per_px,
+                   angle=rng.uniform(0, 2 * math.pi), offset=tuple(rng.uniform(0, 256, 2)),
+                   bank=(int(rng.integers(BANK_COUNT)), int(rng.integers(BANK_COUNT))),
+                   scale2=math.exp(rng.uniform(math.log(1.7), math.log(5.0))),
+                   period=rng.uniform(3.0, 24.0) / texel_px * math.exp(rng.uniform(0, 1)),
+                   duty=rng.uniform(0.08, 0.3))
+    if kind == "weak":
+        mat.contrast = rng.uniform(0.02, 0.08)
+    elif kind == "flat":
+        mat.contrast = 0.0
+    if rng.random() < level["spec"]:
+        mat.specular = rng.uniform(0.3, 0.9)
+        mat.shininess = math.exp(rng.uniform(math.log(20.0), math.log(200.0)))
+    return mat
+
+
+def _sample_background(rng: np.random.Generator, rig: Rig, level: dict,
+                       max_disp: int) -> tuple[list[Primitive], tuple[float, float, float]]:
+    """Background walls (back wall first) and the back wall's disparity plane ``(alpha, beta, d_centre)``."""
+    W, H = rig.left.size
+    d_c = max_disp * rng.uniform(0.05, 0.3)
+    slope = level["bg_slope"]
+    ax, ay = rng.uniform(-1, 1, 2) * slope * d_c / W
+    # keep the wall's disparity >= d_c / 4 over the image extended by half its size each side (the right
+    # camera sees a shifted and rotated window), and <= max_disp / 2 inside the image
+    ext = np.array([[x, y] for x in (-W, W) for y in (-H, H)], dtype=np.float64)
+    lowest = d_c + (ext @ np.array([ax, ay])).min()
+    if lowest < d_c / 4:
+        shrink = (d_c * 0.75) / (d_c - lowest)
+        ax, ay = ax * shrink, ay * shrink
+    mm_per_px = rig.baseline / d_c  # at depth z = f B / d_c one pixel covers z / f = B / d_c
+    walls: list[Primitive] = [disparity_plane(rig, ax, ay, d_c, rng.uniform(0, 2 * math.pi),
+                                              sample_material(rng, level, mm_per_px))]
+    cy = rig.left.K[1, 2]
+    cx = rig.left.K[0, 2]
+    if rng.random() < level["walls"][0]:  # floor: disparity grows downwards from a horizon row
+        horizon = rng.uniform(0.15, 0.6) * H
+        d_bottom = max_disp * rng.uniform(0.3, 0.8)
+        beta = d_bottom / (H - 0.5 - horizon)
+        alpha = rng.uniform(-0.1, 0.1) * d_bottom / W
+        d_centre = beta * (cy - horizon)
+        walls.append(disparity_plane(rig, alpha, beta, d_centre, rng.uniform(0, 2 * math.pi),
+                                     sample_material(rng, level, rig.baseline / (0.5 * d_bottom))))
+    if rng.random() < level["walls"][1]:  # side wall: disparity grows towards one image side
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        x_v = cx + side * rng.uniform(0.1, 0.4) * W
+        d_edge = max_disp * rng.uniform(0.3, 0.7)
+        alpha = side * d_edge / (abs((cx + side * W / 2) - x_v) + 1.0)
+        beta = rng.uniform(-0.1, 0.1) * d_edge / H
+        d_centre = alpha * (cx - x_v)
+        walls.append(disparity_plane(rig, alpha, beta, d_centre, rng.uniform(0, 2 * math.pi),
+                                     sample_material(rng, level, rig.baseline / (0.5 * d_edge))))
+    return walls, (ax, ay, d_c)
+
+
+def _blob_radii(rng: np.random.Generator, n: int = 64) -> np.ndarray:
+    theta = np.arange(n) * (2 * math.pi / n)
+    r = np.ones(n)
+    for k in range(1, 6):
+        r += rng.uniform(0, 0.35) / k * np.cos(k * theta + rng.uniform(0, 2 * math.pi))
+    r = np.clip(r, 0.2, None)
+    return r / r.max()
+
+
+def _sample_object(rng: np.random.Generator, rig: Rig, level: dict, max_disp: int,
+                   back: tuple[float, float, float]) -> Primitive:
+    W, H = rig.left.size
+    K = rig.left.K
+    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+    B = rig.baseline
+    x = rng.uniform(*level["spread"]) * W
+    y = rng.uniform(*level["spread"]) * H
+    d_wall = back[2] + back[0] * (x - cx) + back[1] * (y - cy)
+    d_lo = min(max(d_wall, 0.0) * 1.15 + 0.02 * max_disp, 0.9 * max_disp)
+    d = rng.uniform(d_lo, max_disp)
+    z = f * B / d
+    r_px = math.exp(rng.uniform(math.log(level["size"][0]), math.log(level["size"][1]))) * min(H, W)
+    radius = r_px * z / f
+    z_min = f * B / max_disp * (1 + 1e-6)
+    z = max(z, z_min + radius)  # nearest point of the bounding sphere stays within max_disp
+    centre = z * np.array([(x - cx) / f, (y - cy) / f, 1.0])
+    mat = sample_material(rng, level, z / f)
+    kind = ("patch", "sphere", "cylinder")[int(rng.choice(3, p=np.array(level["kinds"]) / sum(level["kinds"])))]
+    roll = rng.uniform(0, 2 * math.pi)
+    if kind == "sphere":
+        return Sphere(centre, radius, axis=rng.normal(size=3), roll=roll, material=mat)
+    if kind == "cylinder":
+        axis = rng.normal(size=3)
+        cyl_r = radius * rng.uniform(0.25, 0.55)
+        half = math.sqrt(max(radius ** 2 - cyl_r ** 2, 1e-12)) * rng.uniform(0.5, 1.0)
+        return Cylinder(centre, axis, cyl_r, half, roll=roll, material=mat)
+    tilt = math.radians(rng.uniform(0, level["slant"]))
+    az = rng.uniform(0, 2 * math.pi)
+    normal = np.array([math.sin(tilt) * math.cos(az), math.sin(tilt) * math.sin(az), -math.cos(tilt)])
+    shape = level["shapes"][int(rng.integers(len(level["shapes"])))]
+    scale = (radius, radius * rng.uniform(0.35, 1.0))
+    if shape == "rectangle":
+        a = rng.uniform(0.3, 1.2)
+        return PlanarPatch(centre, normal, scale, "polygon", roll, angles=np.array([a, math.pi - a, math.pi + a, -a]),
+                           material=mat)
+    if shape == "polygon":
+        k = int(rng.integers(3, 9))
+        angles = (np.arange(k) + rng.uniform(-0.2, 0.2, k)) * (2 * math.pi / k) + rng.uniform(0, 2 * math.pi)
+        return PlanarPatch(centre, normal, scale, "polygon", roll, angles=angles, material=mat)
+    if shape == "blob":
+        return PlanarPatch(centre, normal, scale, "blob", roll, radii=_blob_radii(rng), material=mat)
+    return PlanarPatch(centre, normal, scale, "ellipse", roll, material=mat)
+
+
+def sample_scene(rng: np.random.Generator, difficulty: int, rig: Rig, max_disp: int,
+                 num_objects: int | None = None) -> Scene:
+    """A random scene for ``rig``: background walls plus objects, all disparities in ``(0, max_disp]``.
+
+    Args:
+        rng: numpy Generator (the only source of randomness).
+        difficulty: 0..MAX_DIFFICULTY (see ``DIFFICULTY``).
+        rig: from :func:`sample_rig`; max_disp: disparity bound in pixels (left camera).
+        num_objects: objects in front of the background (default: random in the level's range), >= 1.
+    """
+    level = DIFFICULTY[check_difficulty(difficulty)]
+    if num_objects is None:
+        num_objects = int(rng.integers(level["objects"][0], level["objects"][1] + 1))
+    elif isinstance(num_objects, bool) or not isinstance(num_objects, int | np.integer) or num_objects < 1:
+        raise ValueError(f"num_objects: expected an integer >= 1, got {num_objects!r}")
+    walls, back = _sample_background(rng, rig, level, max_disp)
+    objects = [_sample_object(rng, rig, level, max_disp, back) for _ in range(num_objects)]
+    az = rng.uniform(-0.6, 0.6)
+    light = np.array([az, -rng.uniform(0.2, 1.0), -rng.uniform(0.6, 1.2)])
+    ambient = rng.uniform(0.45, 0.6) if difficulty == 0 else rng.uniform(0.2, 0.5)
+    return Scene(walls + objects, light / np.linalg.norm(light), ambient, max_disp, num_background=len(walls))

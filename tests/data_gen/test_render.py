@@ -1,0 +1,207 @@
+"""Ground truth of data_gen proven on rendered pairs: warping, occlusion, depth, epipolar geometry, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+import data_gen
+from data_gen.textures import Material
+
+H, W = 96, 160
+CLEAN = dict(noise=False, photometric=False, blur=False, specular=False)
+
+
+def warp_right_to_left(right: torch.Tensor, disp: torch.Tensor) -> torch.Tensor:
+    """Sample ``right`` (C, H, W) at ``x - disp`` (1, H, W), bilinear."""
+    _, h, w = right.shape
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij")
+    grid = torch.stack([(xs - disp[0]) / (w - 1) * 2 - 1, ys / (h - 1) * 2 - 1], dim=-1)  # HxWx2
+    return F.grid_sample(right[None], grid[None], align_corners=True)[0]
+
+
+def near_discontinuity(disp: torch.Tensor, jump: float = 1.0) -> torch.Tensor:
+    d = disp[0]
+    edge = torch.zeros_like(d, dtype=torch.bool)
+    gx = (d[:, 1:] - d[:, :-1]).abs() > jump
+    gy = (d[1:] - d[:-1]).abs() > jump
+    edge[:, 1:] |= gx
+    edge[:, :-1] |= gx
+    edge[1:] |= gy
+    edge[:-1] |= gy
+    return edge
+
+
+def lr_check_failure(disp: torch.Tensor, disp_right: torch.Tensor, tol: float = 1.0) -> torch.Tensor:
+    d = disp[0]
+    h, w = d.shape
+    xr = torch.round(torch.arange(w).expand(h, w) - d).long()
+    inside = (xr >= 0) & (xr < w)
+    dr = disp_right[0].gather(1, xr.clamp(0, w - 1))
+    return ~inside | ((d - dr).abs() > tol)
+
+
+@pytest.mark.parametrize("difficulty", [0, 2, 4])
+def test_warp_right_to_left_reproduces_left(difficulty):
+    p = data_gen.render_pair(5, 0, difficulty=difficulty, height=H, width=W, **CLEAN)
+    assert p["left"].shape == (3, H, W) and p["left"].dtype == torch.float32
+    mask = (p["valid"] & ~p["occlusion"] & ~p["specular"])[0] & ~near_discontinuity(p["disparity"])
+    assert mask.float().mean() > 0.5
+    err = (warp_right_to_left(p["right"], p["disparity"]) - p["left"]).abs().mean(0)[mask]
+    wrong = (warp_right_to_left(p["right"], p["disparity"] + 1.5) - p["left"]).abs().mean(0)[mask]
+    assert err.mean() < 0.02
+    assert torch.quantile(err, 0.9) < 0.05
+    assert wrong.mean() > 3 * err.mean()
+
+
+@pytest.mark.parametrize("seed,difficulty", [(1, 1), (2, 3), (3, 4)])
+def test_occlusion_mask_is_lr_check_failure(seed, difficulty):
+    p = data_gen.render_pair(seed, 0, difficulty=difficulty, height=H, width=W, **CLEAN)
+    valid = p["valid"][0]
+    occ = p["occlusion"][0]
+    assert occ.any() and (~occ).any()
+    lr_fail = lr_check_failure(p["disparity"], p["disparity_right"])
+    agree = (lr_fail == occ)[valid].float().mean()
+    assert agree > 0.98
+    # disagreements only where the rounding of the LR check meets a depth edge
+    off = (lr_fail != occ) & valid
+    assert (off & ~near_discontinuity(p["disparity"], 0.5) & ~near_discontinuity(p["disparity_right"], 0.5)
+            ).float().mean() < 0.01
+
+
+def test_depth_is_f_b_over_disparity_and_disparity_in_range():
+    for difficulty in range(data_gen.MAX_DIFFICULTY + 1):
+        p = data_gen.render_pair(7, difficulty, difficulty=difficulty, height=H, width=W)
+        calib = p["calib"]
+        assert calib.is_rectified()
+        v = p["valid"]
+        assert v.float().mean() > 0.99
+        d, z = p["disparity"][v].double(), p["depth"][v].double()
+        torch.testing.assert_close(z * d, torch.full_like(z, calib.focal * calib.baseline), rtol=1e-4, atol=0)
+        assert p["max_disp"] == data_gen.default_max_disp(difficulty, W) < W / 2
+        assert float(d.min()) > 0 and float(d.max()) <= p["max_disp"] + 1e-3
+
+
+def test_difficulty_zero_is_fronto_parallel_and_scales_with_width():
+    p = data_gen.render_pair(3, 0, difficulty=0, height=H, width=W)
+    d = p["disparity"][p["valid"]]
+    distinct = torch.unique(torch.round(d * 100))
+    assert len(distinct) <= len(p["scene"].objects)  # one constant disparity per plane
+    assert data_gen.default_max_disp(data_gen.MAX_DIFFICULTY, 512) == 192
+    assert data_gen.default_max_disp(data_gen.MAX_DIFFICULTY, 256) == 96
+    assert data_gen.default_max_disp(0, 512) < data_gen.default_max_disp(2, 512)
+
+
+@pytest.mark.parametrize("distortion", [False, True])
+def test_unrectified_correspondences_satisfy_epipolar_constraint(distortion):
+    p = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, rectified=False, distortion=distortion)
+    c = p["calib"]
+    assert not c.is_rectified()
+    assert (c.dist1 is not None) == distortion
+    seen = (p["valid"] & ~p["occlusion"])[0]
+    ys, xs = torch.nonzero(seen, as_tuple=True)
+    x1 = torch.stack([xs, ys], -1).double().numpy()
+    x2 = p["correspondence"][:, seen].T.double().numpy()
+    K1, K2, R, t = (a.numpy() for a in (c.K1, c.K2, c.R, c.t))
+    if distortion:  # undistort with OpenCV's model and the written coefficients
+        x1 = cv2.undistortPoints(x1[:, None], K1, c.dist1.numpy(), P=K1)[:, 0]
+        x2 = cv2.undistortPoints(x2[:, None], K2, c.dist2.numpy(), P=K2)[:, 0]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    Fm = np.linalg.inv(K2).T @ tx @ R @ np.linalg.inv(K1)
+    h1 = np.concatenate([x1, np.ones((len(x1), 1))], 1)
+    h2 = np.concatenate([x2, np.ones((len(x2), 1))], 1)
+    lines = h1 @ Fm.T  # epipolar lines in the right image
+    dist = np.abs((h2 * lines).sum(1)) / np.linalg.norm(lines[:, :2], axis=1)
+    assert len(dist) > 0.5 * H * W
+    assert np.median(dist) < 1e-3 and dist.max() < 2e-2
+    # a wrong pose is detected by the same test
+    R_wrong = cv2.Rodrigues(np.array([0.0, 0.02, 0.0]))[0] @ R
+    lines_w = h1 @ (np.linalg.inv(K2).T @ tx @ R_wrong @ np.linalg.inv(K1)).T
+    assert np.median(np.abs((h2 * lines_w).sum(1)) / np.linalg.norm(lines_w[:, :2], axis=1)) > 0.1
+
+
+def test_same_seed_and_index_give_the_same_pair_in_any_order():
+    a = data_gen.render_pair(4, 2, difficulty=3, height=48, width=96)
+    data_gen.render_pair(4, 1, difficulty=3, height=48, width=96)
+    b = data_gen.render_pair(4, 2, difficulty=3, height=48, width=96)
+    c = data_gen.render_pair(4, 3, difficulty=3, height=48, width=96)
+    for key in ("left", "right", "disparity", "occlusion"):
+        assert torch.equal(a[key], b[key])
+    assert not torch.equal(a["left"], c["left"])
+
+
+def test_dataset_workers_match_and_collate():
+    ds = data_gen.SyntheticStereo(4, seed=9, difficulty=1, height=32, width=64)
+    serial = [ds[i] for i in range(len(ds))]
+    loader = torch.utils.data.DataLoader(ds, batch_size=2, num_workers=2, collate_fn=data_gen.collate)
+    batches = list(loader)
+    assert batches[0]["left"].shape == (2, 3, 32, 64)
+    assert batches[0]["valid"].dtype == torch.bool and batches[0]["occlusion"].shape == (2, 1, 32, 64)
+    assert isinstance(batches[0]["calib"], list) and isinstance(batches[0]["name"], list)
+    for b, batch in enumerate(batches):
+        for j in range(2):
+            item = serial[2 * b + j]
+            assert batch["name"][j] == item["name"]
+            assert torch.equal(batch["left"][j], item["left"])
+            assert torch.equal(batch["disparity"][j], item["disparity"])
+    assert ds[-1]["name"] == serial[-1]["name"]
+    with pytest.raises(IndexError, match="index"):
+        ds[4]
+
+
+@pytest.mark.parametrize("kwargs,param", [
+    (dict(baseline=-10.0), "baseline"),
+    (dict(max_disp=200), "max_disp"),
+    (dict(max_disp=80), "max_disp"),
+    (dict(num_objects=0), "num_objects"),
+    (dict(difficulty=7), "difficulty"),
+    (dict(difficulty="hard"), "difficulty"),
+    (dict(height=0), "height"),
+    (dict(supersample=0), "supersample"),
+])
+def test_bad_input_names_the_parameter(kwargs, param):
+    args = dict(seed=0, index=0, height=H, width=W)
+    args.update(kwargs)
+    with pytest.raises((ValueError, TypeError), match=param):
+        data_gen.render_pair(**args)
+    if param != "height":
+        with pytest.raises((ValueError, TypeError), match=param):
+            data_gen.SyntheticStereo(2, height=H, width=W, **{k: v for k, v in kwargs.items()})
+
+
+def test_raycast_and_visibility_on_a_hand_built_scene():
+    wall = data_gen.Plane([0, 0, 5000], [0, 0, 1], material=Material(kind="flat"))
+    ball = data_gen.Sphere([0, 0, 1000], 100.0)
+    scene = data_gen.Scene([wall, ball])
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.5, 0.0, 1.0]], dtype=torch.float64)
+    hits = data_gen.raycast(scene, torch.zeros(3, dtype=torch.float64), dirs)
+    torch.testing.assert_close(hits.t, torch.tensor([900.0, 5000.0], dtype=torch.float64))
+    assert hits.ids.tolist() == [1, 0]
+    torch.testing.assert_close(hits.normals[0], torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64))
+    torch.testing.assert_close(hits.points[1], torch.tensor([2500.0, 0.0, 5000.0], dtype=torch.float64))
+    cam = data_gen.Camera(np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]]), np.eye(3), np.zeros(3), (101, 101))
+    pts = torch.tensor([[0.0, 0.0, 5000.0], [1500.0, 0.0, 5000.0], [0.0, 0.0, 900.0], [3000.0, 0.0, 5000.0]],
+                       dtype=torch.float64)  # behind the ball, beside it, on it, outside the image
+    assert data_gen.visible_from(scene, cam, pts).tolist() == [False, True, True, False]
+    # an extra light term (a projector) brightens the image where it shines
+    base = data_gen.render_view(scene, cam, supersample=1, geometry=False)["image"]
+    lit = data_gen.render_view(scene, cam, supersample=1, geometry=False,
+                               extra_light_fn=lambda p, n, ids: (p[:, 0] > 0).to(p.dtype) * 0.3)["image"]
+    assert torch.all(lit[:, :, 60:] >= base[:, :, 60:]) and torch.equal(lit[:, :, :40], base[:, :, :40])
+
+
+def test_cylinder_and_patch_intersections_match_closed_form():
+    cyl = data_gen.Cylinder([0, 0, 1000], [0, 1, 0], radius=50.0, half_length=80.0)
+    patch = data_gen.PlanarPatch([0, 0, 500], [0, 0, -1], (30.0, 10.0), "polygon",
+                                 angles=np.array([0.5, math.pi - 0.5, math.pi + 0.5, -0.5]))
+    scene = data_gen.Scene([cyl, patch])
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.079, 1.0], [0.0, 0.2, 1.0], [0.02, 0.05, 1.0]], dtype=torch.float64)
+    hits = data_gen.raycast(scene, torch.zeros(3, dtype=torch.float64), dirs)
+    assert hits.ids.tolist() == [1, 0, -1, 0]  # patch, cylinder side, miss, cylinder above the patch
+    assert math.isclose(hits.t[0], 500.0) and math.isclose(hits.t[1], 950.0, rel_tol=1e-9)
+    assert math.isinf(hits.t[2])
