@@ -20,13 +20,28 @@ def _box_sum_1d(x: torch.Tensor, radius: int, dim: int) -> tuple[torch.Tensor, t
     """
     n = x.shape[dim]
     cs = torch.cumsum(x, dim=dim)
-    zero = torch.zeros_like(cs.narrow(dim, 0, 1))
-    cs = torch.cat([zero, cs], dim=dim)  # S[0] = 0, S[i + 1] = sum_{k <= i} x[k]
+    zeros = torch.zeros_like(cs.narrow(dim, 0, 1)).expand_as(cs.narrow(dim, 0, 1))
+    last = cs.narrow(dim, n - 1, 1)
+    size = list(cs.shape)
+    size[dim] = radius
+    # S = [0] * (radius + 1) ++ cumsum ++ [total] * radius, so that sum(x[lo:hi]) = S[i + 2r + 1] - S[i]
+    padded = torch.cat([zeros.expand(*size[:dim], radius + 1, *size[dim + 1:]), cs,
+                        last.expand(*size)], dim=dim)
+    out = padded.narrow(dim, 2 * radius + 1, n) - padded.narrow(dim, 0, n)
     i = torch.arange(n, device=x.device)
-    hi = (i + radius + 1).clamp(max=n)
-    lo = (i - radius).clamp(min=0)
-    out = cs.index_select(dim, hi) - cs.index_select(dim, lo)
-    return out, (hi - lo).to(x.dtype)
+    count = (i + radius + 1).clamp(max=n) - (i - radius).clamp(min=0)
+    return out, count.to(x.dtype)
+
+
+def _box(x: torch.Tensor, window: int, normalize: bool) -> torch.Tensor:
+    check_shape(x, ["B", "C", "H", "W"], "x")
+    check_window(window)
+    if window == 1:
+        return x
+    r = window // 2
+    out, count_w = _box_sum_1d(x, r, dim=3)
+    out, count_h = _box_sum_1d(out, r, dim=2)
+    return out / (count_h[:, None] * count_w[None, :]) if normalize else out  # HxW counts
 
 
 def box_sum(x: torch.Tensor, window: int) -> torch.Tensor:
@@ -39,14 +54,7 @@ def box_sum(x: torch.Tensor, window: int) -> torch.Tensor:
     Returns:
         :math:`(B, C, H, W)`; O(1) operations per pixel whatever the window size.
     """
-    check_shape(x, ["B", "C", "H", "W"], "x")
-    check_window(window)
-    if window == 1:
-        return x
-    r = window // 2
-    out, _ = _box_sum_1d(x, r, dim=3)
-    out, _ = _box_sum_1d(out, r, dim=2)
-    return out
+    return _box(x, window, normalize=False)
 
 
 def box_mean(x: torch.Tensor, window: int) -> torch.Tensor:
@@ -59,14 +67,7 @@ def box_mean(x: torch.Tensor, window: int) -> torch.Tensor:
     Returns:
         :math:`(B, C, H, W)`; O(1) per pixel (integral image along W then H).
     """
-    check_shape(x, ["B", "C", "H", "W"], "x")
-    check_window(window)
-    if window == 1:
-        return x
-    r = window // 2
-    out, count_w = _box_sum_1d(x, r, dim=3)
-    out, count_h = _box_sum_1d(out, r, dim=2)
-    return out / (count_h[:, None] * count_w[None, :])  # HxW counts broadcast over B, C
+    return _box(x, window, normalize=True)
 
 
 def min_filter(x: torch.Tensor, window: int) -> torch.Tensor:

@@ -26,7 +26,12 @@ Right positions outside the image (``x - d < 0``) are compared against the repli
 aggregating, and their final cost is set to ``max(valid costs of the volume) + 1`` — a large *finite* cost,
 so WTA never picks them unless nothing else exists and SGM/DP recurrences stay finite.
 
-Memory: the output volume is allocated once; the intermediate per-disparity work is done in chunks of
+Backends: a vectorised torch path (differentiable, any device, chunked) and numba CPU kernels
+(:mod:`stereonet.cost._cost_numba`, tested equal) that ``backend="auto"`` picks for float32 CPU input
+without gradient; the numba path returns a ``(B, D, H, W)`` view of a ``(B, H, W, D)`` buffer and needs
+one volume of memory (no chunking needed beyond that).
+
+Memory: the torch path allocates the output volume once; the intermediate per-disparity work is done in chunks of
 disparities sized to ``memory_budget`` bytes (default 512 MiB), so e.g. KITTI (1242x375, 192 disparities)
 builds in bounded memory.
 """
@@ -36,11 +41,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numpy as np
 import torch
 
 from stereonet.checks import StereoInputError, check_image, check_max_disp, check_stereo_inputs, check_window
 from stereonet.cost.box import box_mean, min_filter
-from stereonet.cost.census import census_transform, popcount, to_grey
+from stereonet.cost.census import BITS_PER_WORD, census_transform, popcount, to_grey
 
 DEFAULT_MEMORY_BUDGET = 512 * 2**20
 NCC_MIN_VARIANCE = 1e-6
@@ -50,26 +56,22 @@ COSTS = ("ad", "sad", "ssd", "zsad", "lssad", "ncc", "census", "census_ad")
 PixelCost = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
-def _pad_left_replicate(x: torch.Tensor, n: int) -> torch.Tensor:
-    """Prepend ``n`` copies of the first column (works for integer tensors too)."""
-    if n == 0:
-        return x
-    return torch.cat([x[..., :1].expand(*x.shape[:-1], n), x], dim=-1)
-
-
 def shifted_stack(right: torch.Tensor, d0: int, d1: int) -> torch.Tensor:
     """``out[:, :, i, y, x] = right[:, :, y, max(x - (d0 + i), 0)]`` for ``d0 <= d0 + i < d1``.
 
     Args:
         right: :math:`(B, C, H, W)` (any dtype).
     Returns:
-        :math:`(B, C, d1 - d0, H, W)` (a copy of the chunk).
+        :math:`(B, C, d1 - d0, H, W)` contiguous (a copy of the chunk; the replicated border column
+        stands in for right pixels left of the image).
     """
-    w = right.shape[-1]
-    padded = _pad_left_replicate(right, d1 - 1)  # BxCxHx(W+d1-1); padded[..., k + x] = right[x + k - d1 + 1]
-    # window k covers padded[..., k:k+W] = right shifted by d = d1 - 1 - k; keep d in [d0, d1)
-    windows = padded.unfold(3, w, 1)[:, :, :, : d1 - d0]  # BxCxHx(d1-d0)xW, k = 0 <-> d = d1 - 1
-    return windows.flip(3).permute(0, 1, 3, 2, 4)  # BxCx(d1-d0)xHxW, i = 0 <-> d = d0
+    b, c, h, w = right.shape
+    out = right.new_empty((b, c, d1 - d0, h, w))
+    for i, d in enumerate(range(d0, d1)):
+        d = min(d, w)
+        out[:, :, i, :, d:] = right[..., : w - d]
+        out[:, :, i, :, :d] = right[..., :1]
+    return out
 
 
 def _invalid_mask(d0: int, d1: int, width: int, device: torch.device) -> torch.Tensor:
@@ -94,7 +96,7 @@ def sweep_cost_volume(left_feat: torch.Tensor, right_feat: torch.Tensor, max_dis
         aggregate: optional ``(B, Dc, H, W) -> (B, Dc, H, W)`` (e.g. a box filter).
         finalize: optional ``(aggregated chunk, d0, d1) -> chunk`` (e.g. NCC normalisation).
         memory_budget: bytes for the intermediates of one chunk.
-        invalid: ``"max+1"`` (costs: largest valid cost + 1) or ``"zero"`` (similarities).
+        invalid: ``"max+1"`` (costs: largest valid cost + 1), ``"zero"`` (similarities) or ``"none"``.
         out_dtype: output dtype (default: the left feature dtype if floating, else float32).
 
     Returns:
@@ -121,14 +123,108 @@ def sweep_cost_volume(left_feat: torch.Tensor, right_feat: torch.Tensor, max_dis
             m = vol.detach().masked_fill(bad, -math.inf).amax()
             running_max = m if running_max is None else torch.maximum(running_max, m)
         out[:, d0:d1] = vol
-    bad = _invalid_mask(0, n_disp, w, out.device)  # Dx1xW
+    if invalid == "none":
+        return out
     if invalid == "max+1":
         fill = float(running_max) + 1.0 if running_max is not None and math.isfinite(float(running_max)) else 1.0
     else:
         fill = 0.0
-    if out.requires_grad:
-        return out.masked_fill(bad, fill)
-    return out.masked_fill_(bad, fill)
+    return fill_out_of_image(out, fill)
+
+
+def fill_out_of_image(vol: torch.Tensor, fill: float | None = None) -> torch.Tensor:
+    """Set ``vol[:, d, :, x]`` for ``x < d`` (right pixel outside the image) to ``fill``.
+
+    Args:
+        vol: :math:`(B, D, H, W)`.
+        fill: value; default ``max(in-image entries) + 1``.
+    Returns:
+        :math:`(B, D, H, W)` (in place unless ``vol`` requires grad).
+    """
+    n_disp, w = vol.shape[1], vol.shape[-1]
+    bad = _invalid_mask(0, n_disp, w, vol.device)  # Dx1xW
+    if fill is None:
+        fill = float(vol.detach().masked_fill(bad, -math.inf).amax()) + 1.0
+    if vol.requires_grad:
+        return vol.masked_fill(bad, fill)
+    return vol.masked_fill_(bad, fill)
+
+
+def _use_numba(left: torch.Tensor, right: torch.Tensor, backend: str) -> bool:
+    if backend not in ("auto", "torch", "numba"):
+        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
+    if backend == "numba":
+        return True
+    needs_grad = torch.is_grad_enabled() and (left.requires_grad or right.requires_grad)
+    return backend == "auto" and left.device.type == "cpu" and left.dtype == torch.float32 and not needs_grad
+
+
+def _hwc(img: torch.Tensor) -> np.ndarray:
+    """(C, H, W) tensor -> (H, W, C) float32 C-contiguous array."""
+    return np.ascontiguousarray(img.detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+
+
+def _hw(img: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(img.detach().to("cpu", torch.float32)[0].numpy())
+
+
+def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int, *,
+                      census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
+                      mode: str = "multiwindow", base: str = "sad") -> torch.Tensor:
+    """The numba CPU path of every cost (inputs already checked): same definitions as the torch path.
+
+    Returns:
+        :math:`(B, D, H, W)` float32 *view* of a ``(B, H, W, D)`` buffer (disparity innermost, the layout
+        the numba SGM and selection kernels read without copying), cast to the input dtype.
+    """
+    from stereonet.cost import _cost_numba as K
+
+    if cost == "adaptive" and (mode not in ("multiwindow", "shiftable") or base not in ("sad", "ssd")):
+        raise StereoInputError(f"mode/base: expected 'multiwindow'|'shiftable' and 'sad'|'ssd', got {mode!r}, {base!r}")
+    n_disp = max_disp + 1
+    vols = []
+    for b in range(left.shape[0]):
+        lb, rb = left[b:b + 1], right[b:b + 1]
+        if cost in ("ad", "sad", "ssd", "adaptive"):
+            sq = cost == "ssd" or (cost == "adaptive" and base == "ssd")
+            vol = K.pixel_diff(_hwc(lb[0]), _hwc(rb[0]), n_disp, sq)
+        elif cost == "zsad":
+            vol = K.pixel_diff(_hwc((lb - box_mean(lb, window))[0]), _hwc((rb - box_mean(rb, window))[0]),
+                               n_disp, False)
+        elif cost == "lssad":
+            vol = K.pixel_diff(_hwc((lb / (box_mean(lb, window) + LSSAD_EPS))[0]),
+                               _hwc((rb / (box_mean(rb, window) + LSSAD_EPS))[0]), n_disp, False)
+        elif cost == "ncc":
+            gl, gr = to_grey(lb).float(), to_grey(rb).float()
+            vol = K.pixel_product(_hw(gl[0]), _hw(gr[0]), n_disp)
+        elif cost in ("census", "census_ad"):
+            check_window(census_window, "census_window")
+            if census_window < 3:
+                raise StereoInputError(f"census_window: expected an odd integer >= 3, got {census_window}")
+            cl = K.census_hwk(_hw(to_grey(lb)[0]), census_window, BITS_PER_WORD)
+            cr = K.census_hwk(_hw(to_grey(rb)[0]), census_window, BITS_PER_WORD)
+            if cost == "census":
+                vol = K.pixel_hamming(cl, cr, n_disp)
+            else:
+                vol = K.pixel_census_ad(cl, cr, _hwc(lb[0]), _hwc(rb[0]), n_disp, np.float32(lambda_census),
+                                        np.float32(lambda_ad))
+        else:
+            raise StereoInputError(f"cost: expected one of {', '.join(COSTS + ('adaptive',))}, got {cost!r}")
+        if window > 1 and cost != "ad":
+            K.box_mean_hwd(vol, window)
+        if cost == "ncc":
+            mu_l, mu_r = box_mean(gl, window), box_mean(gr, window)
+            var_l = (box_mean(gl * gl, window) - mu_l * mu_l).clamp(min=0)
+            var_r = (box_mean(gr * gr, window) - mu_r * mu_r).clamp(min=0)
+            K.ncc_finalize(vol, _hw(mu_l[0]), _hw(var_l[0]), _hw(mu_r[0]), _hw(var_r[0]), NCC_MIN_VARIANCE)
+        if cost == "adaptive":
+            vol = K.multiwindow_hwd(vol, window) if mode == "multiwindow" else K.min_filter_hwd(vol, window)
+        vols.append(vol)
+    fill = np.float32(max(K.valid_max_hwd(v) for v in vols) + 1.0)
+    for v in vols:
+        K.fill_invalid_hwd(v, fill)
+    out = torch.from_numpy(np.stack(vols) if len(vols) > 1 else vols[0][None])  # BxHxWxD
+    return out.permute(0, 3, 1, 2).to(device=left.device, dtype=left.dtype)  # BxDxHxW view
 
 
 def _box(window: int) -> Callable[[torch.Tensor], torch.Tensor] | None:
@@ -149,47 +245,65 @@ def _prepare(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int
 
 
 def ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, *,
-                   memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                   memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                   backend: str = "auto") -> torch.Tensor:
     """Pixelwise absolute difference (mean over channels). ``left``/``right`` (B, C, H, W) -> (B, D, H, W)."""
     left, right, max_disp, _ = _prepare(left, right, max_disp, 1)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "ad", 1)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, memory_budget=memory_budget)
 
 
 def sad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
-                    memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                    memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                    backend: str = "auto") -> torch.Tensor:
     """Window mean of absolute differences. (B, C, H, W) pair -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "sad", window)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
 
 
 def ssd_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
-                    memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                    memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                    backend: str = "auto") -> torch.Tensor:
     """Window mean of squared differences. (B, C, H, W) pair -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "ssd", window)
     return sweep_cost_volume(left, right, max_disp, _sq_diff, _box(window), memory_budget=memory_budget)
 
 
 def zsad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
-                     memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                     memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                     backend: str = "auto") -> torch.Tensor:
     """SAD of zero-mean images ``I - box_mean(I, window)`` (see module doc). -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "zsad", window)
     lz, rz = left - box_mean(left, window), right - box_mean(right, window)
     return sweep_cost_volume(lz, rz, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
 
 
 def lssad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
-                      memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                      memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                      backend: str = "auto") -> torch.Tensor:
     """SAD of locally scaled images ``I / (box_mean(I, window) + 1/255)`` (see module doc). -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "lssad", window)
     ls = left / (box_mean(left, window) + LSSAD_EPS)
     rs = right / (box_mean(right, window) + LSSAD_EPS)
     return sweep_cost_volume(ls, rs, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
 
 
 def ncc_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
-                    memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                    memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                    backend: str = "auto") -> torch.Tensor:
     """``1 - NCC`` over the window on grey images; zero variance -> NCC := 0 (cost 1). -> (B, D, H, W) in [0, 2]."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "ncc", window)
     if window < 3:
         raise StereoInputError(f"window: NCC needs a window of at least 3, got {window}")
     gl, gr = to_grey(left), to_grey(right)
@@ -217,9 +331,12 @@ def _hamming_stack(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
 
 
 def census_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 1, *,
-                       census_window: int = 5, memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                       census_window: int = 5, memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                       backend: str = "auto") -> torch.Tensor:
     """Hamming distance of census codes, box-averaged over ``window``. -> (B, D, H, W) in bits."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "census", window, census_window=census_window)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
 
     def pixel(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
@@ -231,24 +348,30 @@ def census_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, w
 
 def census_ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 1, *,
                           census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
-                          memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                          memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                          backend: str = "auto") -> torch.Tensor:
     """AD-Census ``2 - exp(-hamming/lambda_census) - exp(-ad/lambda_ad)``. -> (B, D, H, W) in [0, 2)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "census_ad", window, census_window=census_window,
+                                 lambda_census=lambda_census, lambda_ad=lambda_ad)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
 
     def pixel(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
         return _hamming_stack(lf, rs).to(left.dtype)
 
-    census = sweep_cost_volume(cl, cr, max_disp, pixel, None, memory_budget=memory_budget, out_dtype=left.dtype)
-    ad = sweep_cost_volume(left, right, max_disp, _abs_diff, None, memory_budget=memory_budget)
+    census = sweep_cost_volume(cl, cr, max_disp, pixel, None, memory_budget=memory_budget, out_dtype=left.dtype,
+                               invalid="none")
+    ad = sweep_cost_volume(left, right, max_disp, _abs_diff, None, memory_budget=memory_budget, invalid="none")
     vol = 2.0 - torch.exp(-census / lambda_census) - torch.exp(-ad / lambda_ad)
     del census, ad
-    return box_mean(vol, window) if window > 1 else vol
+    return fill_out_of_image(box_mean(vol, window) if window > 1 else vol)
 
 
 def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
                          base: str = "sad", mode: str = "multiwindow",
-                         memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+                         memory_budget: int = DEFAULT_MEMORY_BUDGET,
+                         backend: str = "auto") -> torch.Tensor:
     """Adaptive-window aggregation of a pixelwise ``base`` cost (``"sad"`` or ``"ssd"``).
 
     ``mode="multiwindow"`` (Hirschmüller et al. 2002, five windows): the mean over the centre window plus
@@ -260,6 +383,8 @@ def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int,
         :math:`(B, D, H, W)` mean costs.
     """
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    if _use_numba(left, right, backend):
+        return numba_cost_volume(left, right, max_disp, "adaptive", window, mode=mode, base=base)
     pixel = {"sad": _abs_diff, "ssd": _sq_diff}.get(base)
     if pixel is None:
         raise StereoInputError(f"base: expected 'sad' or 'ssd', got {base!r}")
@@ -291,7 +416,9 @@ def build_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, co
         max_disp: ``0 < max_disp < W``; the volume has ``D = max_disp + 1`` disparities 0..max_disp.
         cost: cost name.
         window: odd aggregation window (ignored by ``"ad"``).
-        **options: per-cost keywords (``census_window``, ``memory_budget``, ``mode``/``base`` for adaptive ...).
+        **options: per-cost keywords (``census_window``, ``memory_budget``, ``mode``/``base`` for adaptive,
+            ``backend``: ``"auto"`` (default: the numba kernels for float32 CPU input that needs no gradient,
+            else torch), ``"torch"`` (chunked to ``memory_budget``, differentiable) or ``"numba"``).
 
     Returns:
         :math:`(B, D, H, W)` costs, lower = better, same dtype/device as ``left``.

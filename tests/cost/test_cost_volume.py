@@ -144,3 +144,19 @@ def test_mismatched_pair_raises():
         build_cost_volume(left, right[:, :1], 8)
     with pytest.raises(StereoInputError, match="census_window"):
         build_cost_volume(left, right, 8, cost="census", census_window=6)
+
+
+@pytest.mark.parametrize("cost, kwargs", [
+    ("ad", {}), ("sad", {}), ("ssd", {}), ("zsad", {}), ("lssad", {}), ("ncc", {}), ("census", {}),
+    ("census", {"census_window": 9}), ("census_ad", {}), ("adaptive", {"mode": "multiwindow"}),
+    ("adaptive", {"mode": "shiftable", "base": "ssd"}),
+])
+def test_numba_backend_equals_torch(cost, kwargs):
+    g = torch.Generator().manual_seed(3)
+    left, right = torch.rand(2, 3, 17, 29, generator=g), torch.rand(2, 3, 17, 29, generator=g)
+    ref = build_cost_volume(left, right, 7, cost=cost, window=5, backend="torch", **kwargs)
+    fast = build_cost_volume(left, right, 7, cost=cost, window=5, backend="numba", **kwargs)
+    assert fast.shape == ref.shape == (2, 8, 17, 29) and fast.dtype == torch.float32
+    torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-5 * max(1.0, float(ref.abs().max())))
+    auto = build_cost_volume(left, right, 7, cost=cost, window=5, **kwargs)
+    assert not auto.is_contiguous()  # auto picks the numba (B, H, W, D) layout for float32 CPU input
