@@ -260,3 +260,23 @@ def test_round_up_max_disp():
     assert round_up_max_disp(16.0, 100) == 16
     assert round_up_max_disp(16.1, 100) == 32
     assert round_up_max_disp(200.0, 100) == 99
+
+
+# ------------------------------------------------------------------------- data_gen output (Middlebury 2014 layout)
+def test_reads_data_gen_output_exactly(tmp_path):
+    from data_gen.cli import generate
+    from data_gen.pair import render_pair
+
+    generate(tmp_path, count=1, seed=5, difficulty=0, height=48, width=96, supersample=1, progress=False)
+    ds = load_dataset(f"middlebury2014:{tmp_path}")
+    assert len(ds) == 1
+    item = ds[0]
+    _check_item(item)
+    ref = render_pair(5, 0, 0, 48, 96, True, 1)
+    assert torch.equal(item["valid"], ref["valid"])
+    assert torch.equal(item["disparity"][item["valid"]], ref["disparity"][ref["valid"]])  # PFM is lossless
+    assert torch.equal(item["occlusion"], ref["occlusion"] & ref["valid"])
+    assert (item["left"] - ref["left"]).abs().max() <= 0.5 / 255 + 1e-6  # 8-bit PNG
+    assert item["max_disp"] == ref["max_disp"] == item["calib"].ndisp
+    assert torch.allclose(item["calib"].K1, ref["calib"].K1, atol=1e-5)
+    assert item["calib"].baseline == pytest.approx(ref["calib"].baseline, rel=1e-6)
