@@ -280,3 +280,10 @@ def test_reads_data_gen_output_exactly(tmp_path):
     assert item["max_disp"] == ref["max_disp"] == item["calib"].ndisp
     assert torch.allclose(item["calib"].K1, ref["calib"].K1, atol=1e-5)
     assert item["calib"].baseline == pytest.approx(ref["calib"].baseline, rel=1e-6)
+
+
+def test_synthetic_spec_builds_data_gen_dataset():
+    import data_gen
+
+    ds = load_dataset("synthetic:5")
+    assert len(ds) == 5 and isinstance(ds.inner, data_gen.SyntheticStereo) and ds.inner.seed == BENCHMARK_SEED
