@@ -1,0 +1,138 @@
+"""A small DispNet-style correlation U-Net (Mayer et al., CVPR 2016), sized for CPU training.
+
+Shared encoder on both images down to 1/4, a 1-D correlation along the scanline at 1/4 resolution,
+an encoder on [correlation, left features] down to 1/16, and a decoder with skip connections that predicts
+disparity at every scale (1/16, 1/8, 1/4, 1/2, 1/1), each as a residual on the upsampled coarser one.
+Every disparity in the output is in pixels of the *input* resolution, left-referenced.
+
+The network needs its input padded to a multiple of :attr:`DispNet.stride`; :func:`predict_disparity`
+pads and unpads (never crops).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stereonet.checks import check_image_pair
+from stereonet.models.layers import (
+    InputPadder,
+    conv_block,
+    correlation_1d,
+    standardize_image,
+    upconv_block,
+)
+
+
+@dataclass
+class DispNetOutput:
+    """What :class:`DispNet` returns, the same structure in train and eval mode.
+
+    Attributes:
+        disparity: full-resolution prediction :math:`(B, 1, H, W)`.
+        pyramid: predictions coarse to fine, scales 1/16, 1/8, 1/4, 1/2, 1/1, each :math:`(B, 1, H/s, W/s)`,
+            values in pixels of the full resolution.
+        features: decoder features ``{1: (B, C0, H, W), 2: (B, C1, H/2, W/2), 4: (B, C2, H/4, W/4)}`` keyed by
+            stride (used by the SMD head).
+    """
+
+    disparity: torch.Tensor
+    pyramid: list[torch.Tensor]
+    features: dict[int, torch.Tensor]
+
+
+def _up2(x: torch.Tensor) -> torch.Tensor:
+    return F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
+
+
+class DispNet(nn.Module):
+    """DispNet-C style network.
+
+    Args:
+        max_disp: largest disparity (input pixels) the correlation layer covers; the correlation at 1/4 has
+            ``max_disp // 4 + 1`` channels. Larger disparities cannot be matched (see ``predict_disparity``).
+        channels: base width ``c``; encoder widths are c, 2c, 4c, 6c.
+    """
+
+    stride = 16
+    scales = (16, 8, 4, 2, 1)
+
+    def __init__(self, max_disp: int = 96, channels: int = 16) -> None:
+        super().__init__()
+        if max_disp < 4:
+            raise ValueError(f"max_disp: expected >= 4, got {max_disp}")
+        self.max_disp = int(max_disp)
+        self.channels = int(channels)
+        c = self.channels
+        self.corr_disp = self.max_disp // 4
+        d4 = self.corr_disp + 1
+        self.disp_unit = self.max_disp / 8.0  # predictor outputs are scaled by this (keeps raw outputs ~1)
+        # shared encoder, both images: 1/2 and 1/4
+        self.enc1 = nn.Sequential(conv_block(3, c, 5, stride=2), conv_block(c, c))
+        self.enc2 = nn.Sequential(conv_block(c, 2 * c, 3, stride=2), conv_block(2 * c, 2 * c))
+        # left-only after the correlation: 1/8 and 1/16
+        self.redir = conv_block(2 * c, c, 1)
+        self.enc3 = nn.Sequential(conv_block(d4 + c, 4 * c, 3, stride=2), conv_block(4 * c, 4 * c))
+        self.enc4 = nn.Sequential(conv_block(4 * c, 6 * c, 3, stride=2), conv_block(6 * c, 6 * c))
+        # decoder
+        self.pred4 = nn.Conv2d(6 * c, 1, 3, padding=1)
+        self.up3 = upconv_block(6 * c, 4 * c)
+        self.dec3 = conv_block(4 * c + 4 * c + 1, 4 * c)
+        self.pred3 = nn.Conv2d(4 * c, 1, 3, padding=1)
+        self.up2 = upconv_block(4 * c, 2 * c)
+        self.dec2 = conv_block(2 * c + 2 * c + d4 + 1, 2 * c)
+        self.pred2 = nn.Conv2d(2 * c, 1, 3, padding=1)
+        self.up1 = upconv_block(2 * c, c)
+        self.dec1 = conv_block(c + c + 1, c)
+        self.pred1 = nn.Conv2d(c, 1, 3, padding=1)
+        self.up0 = upconv_block(c, c // 2)
+        self.dec0 = conv_block(c // 2 + 3 + 1, c // 2)
+        self.pred0 = nn.Conv2d(c // 2, 1, 3, padding=1)
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor) -> DispNetOutput:
+        """left, right: :math:`(B, C, H, W)` in [0, 1], H and W multiples of :attr:`stride`."""
+        h, w = left.shape[-2:]
+        if h % self.stride or w % self.stride:
+            raise ValueError(f"left: expected H and W multiples of {self.stride} (use predict_disparity to pad), "
+                             f"got {tuple(left.shape)}")
+        x_left, x_right = standardize_image(left), standardize_image(right)
+        both = torch.cat([x_left, x_right], dim=0)  # 2BxCxHxW: one pass of the shared encoder
+        e1 = self.enc1(both)
+        e2 = self.enc2(e1)
+        b = left.shape[0]
+        e1_l, e2_l, e2_r = e1[:b], e2[:b], e2[b:]
+        corr = correlation_1d(e2_l, e2_r, self.corr_disp)  # BxD4xH/4xW/4
+        e3 = self.enc3(torch.cat([corr, self.redir(e2_l)], dim=1))
+        e4 = self.enc4(e3)
+
+        d4 = self.pred4(e4) * self.disp_unit
+        x3 = self.dec3(torch.cat([self.up3(e4), e3, _up2(d4)], dim=1))
+        d3 = _up2(d4) + self.pred3(x3) * self.disp_unit
+        x2 = self.dec2(torch.cat([self.up2(x3), e2_l, corr, _up2(d3)], dim=1))
+        d2 = _up2(d3) + self.pred2(x2) * self.disp_unit
+        x1 = self.dec1(torch.cat([self.up1(x2), e1_l, _up2(d2)], dim=1))
+        d1 = _up2(d2) + self.pred1(x1) * self.disp_unit
+        x0 = self.dec0(torch.cat([self.up0(x1), x_left, _up2(d1)], dim=1))
+        d0 = _up2(d1) + self.pred0(x0) * self.disp_unit
+        return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2})
+
+
+def run_padded(net: nn.Module, left: torch.Tensor, right: torch.Tensor):
+    """Pad ``left``/``right`` :math:`(B, C, H, W)` to ``net.stride`` and run ``net``; returns (output, padder).
+
+    The caller unpads what it needs with ``padder.unpad`` (outputs are at the padded size).
+    """
+    left, right = check_image_pair(left, right)
+    padder = InputPadder(left.shape[-2], left.shape[-1], net.stride)
+    left_p, right_p = padder.pad(left, right)
+    return net(left_p, right_p), padder
+
+
+@torch.no_grad()
+def predict_disparity(net: DispNet, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+    """Full-resolution disparity :math:`(B, 1, H, W)` for any H, W (padded to the stride, then unpadded)."""
+    out, padder = run_padded(net, left, right)
+    return padder.unpad(out.disparity)

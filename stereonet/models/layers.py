@@ -1,0 +1,96 @@
+"""Building blocks shared by the learned matchers: conv blocks, 1-D correlation, padding to a stride.
+
+Everything here is stateless between calls (no tensors stored on ``self`` during ``forward``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stereonet.checks import StereoInputError
+
+
+def conv_block(in_channels: int, out_channels: int, kernel_size: int = 3, stride: int = 1) -> nn.Sequential:
+    """Conv2d ("same" padding for stride 1) followed by LeakyReLU(0.1), as in DispNet."""
+    return nn.Sequential(
+        nn.Conv2d(in_channels, out_channels, kernel_size, stride=stride, padding=kernel_size // 2),
+        nn.LeakyReLU(0.1, inplace=True),
+    )
+
+
+def upconv_block(in_channels: int, out_channels: int) -> nn.Sequential:
+    """x2 transposed-conv upsampling followed by LeakyReLU(0.1): (B, Cin, H, W) -> (B, Cout, 2H, 2W)."""
+    return nn.Sequential(
+        nn.ConvTranspose2d(in_channels, out_channels, 4, stride=2, padding=1),
+        nn.LeakyReLU(0.1, inplace=True),
+    )
+
+
+def standardize_image(image: torch.Tensor) -> torch.Tensor:
+    """Per-image, per-channel zero mean / unit std, so networks see the same statistics on any photo.
+
+    image: :math:`(B, C, H, W)` in [0, 1]; grey (C = 1) is repeated to 3 channels. Returns :math:`(B, 3, H, W)`.
+    """
+    if image.shape[1] == 1:
+        image = image.expand(-1, 3, -1, -1)
+    mean = image.mean(dim=(2, 3), keepdim=True)
+    std = image.std(dim=(2, 3), keepdim=True)
+    return (image - mean) / (std + 1e-2)  # 1e-2: keeps flat images finite (std is ~0.2 on natural images)
+
+
+def correlation_1d(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int) -> torch.Tensor:
+    """DispNet 1-D correlation along the scanline (a similarity volume, higher = better).
+
+    ``similarity[b, d, y, x] = mean_c feat_left[b, c, y, x] * feat_right[b, c, y, x - d]``, 0 where ``x - d < 0``.
+
+    Args:
+        feat_left, feat_right: :math:`(B, C, H, W)`.
+        max_disp: largest disparity in pixels of this feature scale; D = max_disp + 1 levels.
+
+    Returns:
+        similarity :math:`(B, D, H, W)`.
+    """
+    if feat_left.shape != feat_right.shape:
+        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
+    b, c, h, w = feat_left.shape
+    similarity = feat_left.new_zeros(b, max_disp + 1, h, w)  # BxDxHxW
+    for d in range(min(max_disp + 1, w)):
+        similarity[:, d, :, d:] = (feat_left[..., d:] * feat_right[..., : w - d]).mean(dim=1)
+    return similarity
+
+
+class InputPadder:
+    """Pad images on the right/bottom (replicate) to a multiple of ``stride``; ``unpad`` removes exactly that.
+
+    Nothing is ever cropped from the input: the output has the input's size.
+    """
+
+    def __init__(self, height: int, width: int, stride: int) -> None:
+        self.height, self.width = int(height), int(width)
+        self.pad_h = (-self.height) % stride
+        self.pad_w = (-self.width) % stride
+
+    def pad(self, *images: torch.Tensor) -> list[torch.Tensor]:
+        """(B, C, H, W) -> (B, C, H + pad_h, W + pad_w) each."""
+        if self.pad_h == 0 and self.pad_w == 0:
+            return list(images)
+        return [F.pad(x, (0, self.pad_w, 0, self.pad_h), mode="replicate") for x in images]
+
+    def unpad(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, C, H + pad_h, W + pad_w) -> (B, C, H, W)."""
+        return x[..., : self.height, : self.width]
+
+
+def resize_disparity(disp: torch.Tensor, height: int, width: int, mode: str = "bilinear") -> torch.Tensor:
+    """Resize a disparity map :math:`(B, 1, h, w)` to ``(height, width)`` and rescale its values by ``width / w``."""
+    scale = width / disp.shape[-1]
+    kwargs = {"align_corners": False} if mode in ("bilinear", "bicubic") else {}
+    return F.interpolate(disp, size=(height, width), mode=mode, **kwargs) * scale
+
+
+def round_up(x: int, multiple: int) -> int:
+    return int(math.ceil(x / multiple) * multiple)

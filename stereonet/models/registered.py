@@ -1,0 +1,149 @@
+"""Learned matchers in the registry: ``siamese``, ``siamese-sgm``, ``dispnet``, ``smd``.
+
+Each loads its network from ``weights/<name>.pt`` (or ``.ckpt``) the first time it runs (cached per file);
+``checkpoint=PATH`` overrides. Missing files, checkpoints of another model and tensors of the wrong shape
+raise errors that name the file (see :mod:`stereonet.models.weights`). No Lightning import here.
+
+Disparities beyond the trained range: DispNet and SMD correlate up to the ``max_disp`` they were trained
+with (96 px). When the requested ``max_disp`` is larger, the pair is downscaled by ``trained / max_disp``
+before the network runs and the disparity is upscaled back (so KITTI at full width, ~200 px, runs at about
+half resolution). The Siamese matchers have no such limit (the cost volume spans ``max_disp``).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from stereonet.matchers import register
+from stereonet.models.dispnet import predict_disparity
+from stereonet.models.layers import resize_disparity
+from stereonet.models.siamese import siamese_cost_volume
+from stereonet.models.smd import predict_smd
+from stereonet.models.weights import default_weights_path, load_weights
+from stereonet.types import StereoOutput
+
+
+@functools.lru_cache(maxsize=8)
+def _cached(path: str, mtime: float, expected: str):
+    return load_weights(path, expected)[0]
+
+
+def load_network(expected: str, checkpoint: str | os.PathLike | None = None) -> torch.nn.Module:
+    """The network for matcher family ``expected`` from ``checkpoint`` or the shipped weights (cached)."""
+    path = Path(checkpoint) if checkpoint is not None else default_weights_path(expected)
+    mtime = path.stat().st_mtime if path.is_file() else -1.0
+    if mtime < 0:
+        load_weights(path, expected)  # raises the FileNotFoundError with the message
+    return _cached(str(path), mtime, expected)
+
+
+def _downscale_to_range(left: torch.Tensor, right: torch.Tensor, max_disp: int, trained_disp: int):
+    """Downscale the pair by ``trained_disp / max_disp`` when ``max_disp`` exceeds the trained range.
+
+    Returns (left, right, scale) with scale <= 1 (1 = unchanged); images :math:`(B, C, h, w)`.
+    """
+    scale = min(1.0, trained_disp / max_disp)
+    if scale < 1.0:
+        h, w = left.shape[-2:]
+        size = (max(16, round(h * scale)), max(16, round(w * scale)))
+        left = F.interpolate(left, size=size, mode="area")
+        right = F.interpolate(right, size=size, mode="area")
+    return left, right, scale
+
+
+def _net_dtype(net: torch.nn.Module, x: torch.Tensor) -> torch.Tensor:
+    return x.to(next(net.parameters()).dtype)
+
+
+@register("dispnet", kind="learned", needs_weights=True,
+          description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt)")
+def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int,
+                    checkpoint: str | None = None) -> StereoOutput:
+    """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]; every pixel valid."""
+    net = load_network("dispnet", checkpoint)
+    h, w = left.shape[-2:]
+    small_left, small_right, _ = _downscale_to_range(left, right, max_disp, net.max_disp)
+    disp = predict_disparity(net, _net_dtype(net, small_left), _net_dtype(net, small_right))
+    if disp.shape[-2:] != (h, w):
+        disp = resize_disparity(disp, h, w)
+    disp = disp.clamp(0, max_disp).to(left.dtype)
+    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
+
+
+@register("smd", kind="learned", needs_weights=True,
+          description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt)")
+def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                upsample: float = 1.0) -> StereoOutput:
+    """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
+    that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the chosen mode's Laplacian scale b
+    (same unit), ``confidence = exp(-b)``; extras hold both modes and the mixture weight."""
+    net = load_network("smd", checkpoint)
+    h, w = left.shape[-2:]
+    hq, wq = round(h * upsample), round(w * upsample)
+    small_left, small_right, scale = _downscale_to_range(left, right, max_disp, net.max_disp)
+    disp, unc, mix = predict_smd(net, _net_dtype(net, small_left), _net_dtype(net, small_right),
+                                 upsample=upsample / scale, with_mixture=True)
+    if disp.shape[-2:] != (hq, wq):  # rounding of the downscaled size
+        ratio = wq / disp.shape[-1]
+        disp, unc = resize_disparity(disp, hq, wq, mode="nearest"), resize_disparity(unc, hq, wq, mode="nearest")
+        mix = {k: F.interpolate(v, size=(hq, wq), mode="nearest") * (1.0 if k == "pi" else ratio)
+               for k, v in mix.items()}
+    disp = disp.clamp(0, max_disp * upsample).to(left.dtype)
+    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool), uncertainty=unc.to(left.dtype),
+                        confidence=torch.exp(-unc).to(left.dtype),
+                        extras={k: v.to(left.dtype) for k, v in mix.items()})
+
+
+def _siamese_cost(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint) -> torch.Tensor:
+    net = load_network("siamese", checkpoint)
+    with torch.no_grad():
+        feats = net(_net_dtype(net, torch.cat([left, right])))  # 2BxFxHxW
+        b = left.shape[0]
+        return siamese_cost_volume(feats[:b], feats[b:], max_disp).to(left.dtype)
+
+
+@register("siamese", kind="learned", needs_weights=True,
+          description="MC-CNN-fast-style Siamese features, dot-product cost, winner-takes-all + subpixel")
+def siamese_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int,
+                    checkpoint: str | None = None) -> StereoOutput:
+    """WTA on the learned cost volume with parabola sub-pixel refinement; every pixel valid."""
+    from stereonet.optimize.subpixel import subpixel_refine
+    from stereonet.optimize.wta import wta
+
+    cost = _siamese_cost(left, right, max_disp, checkpoint)
+    disp, min_cost = wta(cost)
+    disp = subpixel_refine(cost, disp)
+    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool), cost_volume=cost,
+                        confidence=(1.0 - min_cost / 2.0).clamp(0, 1))
+
+
+@register("siamese-sgm", kind="learned", needs_weights=True,
+          description="Siamese learned cost + SGM (8 paths) + LR check + occlusion filling")
+def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                        P1: float = 0.05, P2: float = 0.6, p2_alpha: float = 0.0, paths: int = 8,
+                        lr_tol: float = 1.0, fill: bool = True) -> StereoOutput:
+    """SGM on the Siamese cost (``1 - cos`` in [0, 2]; P1/P2 in those units), WTA + parabola sub-pixel,
+    left-right check (tolerance ``lr_tol``) and, with ``fill``, textbook occlusion filling (then every pixel
+    is valid; ``extras["lr_consistent"]`` keeps the check). Without ``fill``, ``valid`` = the LR check."""
+    from stereonet.optimize.fill import fill_occlusions
+    from stereonet.optimize.lr_check import left_right_check, wta_right
+    from stereonet.optimize.sgm import sgm_aggregate
+    from stereonet.optimize.subpixel import subpixel_refine
+    from stereonet.optimize.wta import wta
+
+    cost = _siamese_cost(left, right, max_disp, checkpoint)
+    agg = sgm_aggregate(cost, P1, P2, paths=paths, image=left if p2_alpha else None, p2_alpha=p2_alpha)
+    disp_int, _ = wta(agg)
+    disp = subpixel_refine(agg, disp_int)
+    consistent = left_right_check(disp_int, wta_right(agg), tol=lr_tol)
+    if fill:
+        disp = fill_occlusions(disp, consistent)
+        valid = torch.ones_like(consistent)
+    else:
+        valid = consistent
+    return StereoOutput(disp, valid, cost_volume=agg, extras={"lr_consistent": consistent})

@@ -1,0 +1,157 @@
+"""An SMD-Nets-style head (Tosi et al., CVPR 2021) on the DispNet backbone.
+
+For every query point (continuous image coordinates) the head samples the backbone's decoder features and
+its disparity bilinearly, and a small MLP predicts a bimodal Laplacian mixture
+
+    p(d) = pi / (2 b1) exp(-|d - mu1| / b1) + (1 - pi) / (2 b2) exp(-|d - mu2| / b2).
+
+The output disparity is the mode with the higher density (a sharp choice at depth edges instead of an
+average of foreground and background), the uncertainty is that mode's scale ``b``. Because queries are
+continuous, the disparity can be produced at any output size, e.g. higher than the input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stereonet.models.dispnet import DispNet, DispNetOutput, run_padded
+
+MIN_SCALE = 0.05
+"""Smallest Laplacian scale b in pixels: keeps the NLL bounded (b -> 0 would give -inf) and is finer than
+any ground truth's sub-pixel precision, so it never limits accuracy."""
+
+
+@dataclass
+class MixtureParams:
+    """Per-query bimodal Laplacian mixture, each tensor :math:`(B, 1, Hq, Wq)`, disparities in input pixels."""
+
+    mu1: torch.Tensor
+    mu2: torch.Tensor
+    b1: torch.Tensor
+    b2: torch.Tensor
+    pi: torch.Tensor  # weight of mode 1; mode 2 has 1 - pi
+
+    def mode_disparity(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The mode with the higher density and its scale: ((B,1,Hq,Wq) disparity, (B,1,Hq,Wq) b)."""
+        first = self.pi / self.b1 >= (1 - self.pi) / self.b2  # peak density pi / (2 b) of each mode
+        return torch.where(first, self.mu1, self.mu2), torch.where(first, self.b1, self.b2)
+
+
+@dataclass
+class SMDOutput:
+    """What :class:`SMDNet` returns (same structure in train and eval).
+
+    Attributes:
+        disparity: mode of the mixture at the query grid :math:`(B, 1, Hq, Wq)`, in pixels of the *query* grid.
+        uncertainty: Laplacian scale of the chosen mode :math:`(B, 1, Hq, Wq)`, same unit.
+        mixture: the mixture parameters at the query grid, same unit.
+        backbone: the DispNet output at the input resolution.
+    """
+
+    disparity: torch.Tensor
+    uncertainty: torch.Tensor
+    mixture: MixtureParams
+    backbone: DispNetOutput
+
+
+def query_grid(batch: int, height: int, width: int, device=None, dtype=None) -> torch.Tensor:
+    """Normalised sampling grid :math:`(B, H, W, 2)` of the pixel centres of an ``height x width`` image.
+
+    With ``align_corners=False`` these coordinates address the same physical points in feature maps of any
+    resolution, so the grid queries the backbone at a finer (or coarser) resolution than its input.
+    """
+    ys = (torch.arange(height, device=device, dtype=dtype) + 0.5) * (2.0 / height) - 1.0
+    xs = (torch.arange(width, device=device, dtype=dtype) + 0.5) * (2.0 / width) - 1.0
+    grid = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1)  # HxWx2, (x, y) order
+    return grid.unsqueeze(0).expand(batch, -1, -1, -1)
+
+
+class SMDNet(nn.Module):
+    """DispNet backbone + continuous bimodal mixture head.
+
+    Args:
+        max_disp, channels: as :class:`DispNet`.
+        hidden: widths of the MLP's hidden layers.
+    """
+
+    stride = DispNet.stride
+
+    def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16)) -> None:
+        super().__init__()
+        self.backbone = DispNet(max_disp=max_disp, channels=channels)
+        self.max_disp = self.backbone.max_disp
+        c = self.backbone.channels
+        in_ch = c // 2 + c + 2 * c + 1  # features at strides 1, 2, 4 + the backbone disparity
+        layers: list[nn.Module] = []
+        for width in hidden:
+            layers += [nn.Conv2d(in_ch, width, 1), nn.LeakyReLU(0.1, inplace=True)]
+            in_ch = width
+        layers.append(nn.Conv2d(in_ch, 5, 1))
+        self.mlp = nn.Sequential(*layers)  # a per-point MLP written as 1x1 convolutions
+
+    def query(self, backbone: DispNetOutput, grid: torch.Tensor) -> MixtureParams:
+        """Mixture at continuous points ``grid`` :math:`(B, Hq, Wq, 2)` (normalised, align_corners=False).
+
+        Returned disparities are in pixels of the backbone's input resolution.
+        """
+        sample = lambda x: F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        disp = sample(backbone.disparity)  # Bx1xHqxWq
+        feats = [sample(backbone.features[s]) for s in (1, 2, 4)]
+        raw = self.mlp(torch.cat([*feats, disp / self.max_disp], dim=1))  # Bx5xHqxWq
+        unit = self.backbone.disp_unit
+        return MixtureParams(
+            mu1=disp + raw[:, 0:1] * unit,
+            mu2=disp + raw[:, 1:2] * unit,
+            b1=F.softplus(raw[:, 2:3]) + MIN_SCALE,
+            b2=F.softplus(raw[:, 3:4]) + MIN_SCALE,
+            pi=torch.sigmoid(raw[:, 4:5]),
+        )
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor,
+                output_size: tuple[int, int] | None = None) -> SMDOutput:
+        """left, right :math:`(B, C, H, W)`, H, W multiples of the stride; ``output_size`` (Hq, Wq) defaults
+        to (H, W). Disparities are returned in pixels of the output grid (scaled by Wq / W)."""
+        backbone = self.backbone(left, right)
+        b, _, h, w = left.shape
+        hq, wq = output_size if output_size is not None else (h, w)
+        grid = query_grid(b, hq, wq, device=left.device, dtype=left.dtype)
+        mix = self.query(backbone, grid)
+        scale = wq / w
+        if scale != 1.0:
+            mix = MixtureParams(mix.mu1 * scale, mix.mu2 * scale, mix.b1 * scale, mix.b2 * scale, mix.pi)
+        disparity, uncertainty = mix.mode_disparity()
+        return SMDOutput(disparity=disparity, uncertainty=uncertainty, mixture=mix, backbone=backbone)
+
+
+@torch.no_grad()
+def predict_smd(net: SMDNet, left: torch.Tensor, right: torch.Tensor, upsample: float = 1.0,
+                with_mixture: bool = False):
+    """(disparity, uncertainty), each :math:`(B, 1, round(H*upsample), round(W*upsample))`, for any H, W.
+
+    With ``with_mixture`` a third element holds the mixture ``{"mu1", "mu2", "b1", "b2", "pi"}`` on the
+    same grid (disparities and scales in pixels of the output grid).
+
+    The input is padded to the stride; the query grid covers only the unpadded image, so nothing is cropped
+    and ``upsample > 1`` gives a super-resolved disparity (values in pixels of the output grid).
+    """
+    backbone, padder = run_padded(net.backbone, left, right)
+    b, _, h, w = left.shape
+    hp, wp = h + padder.pad_h, w + padder.pad_w
+    hq, wq = round(h * upsample), round(w * upsample)
+    # grid over the unpadded region [0, w) x [0, h) expressed in the padded map's normalised coordinates
+    grid = query_grid(b, hq, wq, device=left.device, dtype=left.dtype)
+    grid = grid.clone()
+    grid[..., 0] = (grid[..., 0] + 1.0) * (w / wp) - 1.0
+    grid[..., 1] = (grid[..., 1] + 1.0) * (h / hp) - 1.0
+    mix = net.query(backbone, grid)
+    disparity, uncertainty = mix.mode_disparity()
+    scale = wq / w
+    if not with_mixture:
+        return disparity * scale, uncertainty * scale
+    params = {"mu1": mix.mu1 * scale, "mu2": mix.mu2 * scale, "b1": mix.b1 * scale, "b2": mix.b2 * scale,
+              "pi": mix.pi}
+    return disparity * scale, uncertainty * scale, params

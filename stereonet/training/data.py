@@ -1,0 +1,253 @@
+"""LightningDataModule for on-the-fly synthetic training pairs with a curriculum over difficulty.
+
+Training pairs are rendered by :mod:`data_gen` on the fly (a pure function of (seed, start step, worker,
+counter), so DataLoader workers never repeat each other); the validation set is a fixed
+list of pairs rendered once with a separate seed. The difficulty of training pairs is set by the
+:class:`~stereonet.training.callbacks.CurriculumCallback` through :meth:`SyntheticStereoDataModule.set_progress`.
+
+``source="random-shift"`` replaces data_gen by random-texture fronto-parallel pairs (constant disparity per
+pair): tiny, dependency-free, used by the fast tests.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, Dataset, IterableDataset, get_worker_info
+
+from stereonet.training.curriculum import difficulty_at
+
+_TENSOR_KEYS = ("left", "right", "disparity", "valid", "occlusion", "nonoccluded")
+
+
+def collate_pairs(items: list[dict]) -> dict:
+    """Stack the tensor fields of item dicts into a batch dict (B first); other fields become lists."""
+    batch: dict = {}
+    for key in items[0]:
+        values = [it[key] for it in items]
+        batch[key] = torch.stack(values) if isinstance(values[0], torch.Tensor) and key in _TENSOR_KEYS else values
+    return batch
+
+
+class RandomShiftStereo(Dataset):
+    """Random-texture pairs with one constant disparity each (``x_right = x_left - d``), all pixels valid
+    except the left ``d`` columns. Items follow the stereonet item dict; a pure function of (seed, index)."""
+
+    def __init__(self, count: int, seed: int = 0, height: int = 64, width: int = 128, max_disp: int = 16,
+                 difficulty: int = 0) -> None:
+        self.count, self.seed, self.height, self.width, self.max_disp = count, seed, height, width, max_disp
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __getitem__(self, index: int) -> dict:
+        g = torch.Generator().manual_seed(self.seed * 1_000_003 + index)
+        d = int(torch.randint(1, self.max_disp + 1, (1,), generator=g))
+        coarse = torch.rand(3, self.height // 4 + 1, (self.width + d) // 4 + 2, generator=g)
+        big = torch.nn.functional.interpolate(coarse[None], scale_factor=4, mode="bilinear", align_corners=False)[0]
+        big = (0.7 * big + 0.3 * torch.rand(big.shape, generator=g))[:, : self.height, : self.width + d]
+        left = big[:, :, d:].contiguous()
+        right = big[:, :, : self.width].contiguous()
+        disp = torch.full((1, self.height, self.width), float(d))
+        valid = torch.ones(1, self.height, self.width, dtype=torch.bool)
+        valid[..., :d] = False
+        return {"left": left, "right": right, "disparity": disp, "valid": valid,
+                "occlusion": ~valid, "name": f"shift-{self.seed}-{index}", "max_disp": self.max_disp}
+
+
+def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: int, width: int,
+                  supersample: int = 2) -> Dataset:
+    if source == "random-shift":
+        return RandomShiftStereo(count, seed=seed, height=height, width=width, max_disp=max(1, width // 8))
+    if source == "data_gen":
+        try:
+            import data_gen
+        except ImportError as e:  # pragma: no cover - data_gen ships with stereonet
+            raise ImportError("source: 'data_gen' needs the data_gen package (pip install -e .)") from e
+        return data_gen.SyntheticStereo(count, seed=seed, difficulty=difficulty, height=height, width=width,
+                                        supersample=supersample)
+    raise ValueError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
+
+
+def max_difficulty(source: str) -> int:
+    if source == "data_gen":
+        import data_gen
+
+        return int(data_gen.MAX_DIFFICULTY)
+    return 0
+
+
+def photometric_augment(item: dict, generator: torch.Generator) -> dict:
+    """Independent brightness / contrast / gamma / colour gain / noise per view (in place on a copy).
+
+    Real pairs differ in exposure between the two cameras; this keeps the networks from relying on equal
+    intensities.
+    """
+    item = dict(item)
+    for key in ("left", "right"):
+        img = item[key]
+        u = torch.rand(6, generator=generator)
+        gamma = 0.7 + 0.6 * float(u[0])
+        contrast = 0.7 + 0.6 * float(u[1])
+        brightness = -0.1 + 0.2 * float(u[2])
+        gains = 0.9 + 0.2 * torch.rand(img.shape[0], 1, 1, generator=generator)
+        img = img.clamp(0, 1) ** gamma
+        img = (img - 0.5) * contrast + 0.5 + brightness
+        img = img * gains + 0.02 * float(u[3]) * torch.randn(img.shape, generator=generator)
+        item[key] = img.clamp(0, 1)
+    return item
+
+
+def swap_flip(item: dict) -> dict:
+    """Mirror a pair: new left = flipped right, new right = flipped left (a valid rectified pair whose
+    left-referenced ground truth is the flipped right-view ground truth). Needs ``disparity_right`` and
+    ``valid_right``; items without them are returned unchanged."""
+    if "disparity_right" not in item or "valid_right" not in item:
+        return item
+    flip = lambda t: t.flip(-1)
+    out = dict(item)
+    out["left"], out["right"] = flip(item["right"]), flip(item["left"])
+    out["disparity"], out["disparity_right"] = flip(item["disparity_right"]), flip(item["disparity"])
+    out["valid"], out["valid_right"] = flip(item["valid_right"]), flip(item["valid"])
+    out.pop("occlusion", None)  # right-view occlusion is not rendered; the loss uses ``valid`` only
+    return out
+
+
+class PooledCurriculumStream(IterableDataset):
+    """Endless stream of training pairs rendered on the fly, each reused a few times from a small pool.
+
+    Rendering a pair costs about as much as a training step on CPU, so every ``reuse`` items one new pair
+    is rendered (at the difficulty in the shared ``difficulty`` value, set by the curriculum) and replaces
+    the oldest one in a pool of ``pool_size``; items are drawn at random from the pool and augmented
+    (swap-flip, photometric). Rendering seeds are ``(seed + 7919 * start, worker, counter)``: a pure function
+    of the start offset (the global step when training (re)starts), so DataLoader workers never repeat
+    each other and a resumed run does not replay the first pairs.
+    """
+
+    def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
+                 augment: bool, difficulty, start, supersample: int = 2) -> None:
+        self.source, self.seed, self.height, self.width = source, seed, height, width
+        self.supersample = supersample
+        self.pool_size, self.reuse, self.augment = max(1, pool_size), max(1, reuse), augment
+        self.difficulty, self.start = difficulty, start  # multiprocessing Values shared with workers
+
+    def __iter__(self):
+        info = get_worker_info()
+        wid, nworkers = (info.id, info.num_workers) if info is not None else (0, 1)
+        stream_seed = self.seed + 7919 * int(self.start.value)
+        g = torch.Generator().manual_seed(stream_seed * 1009 + wid)
+        pool: list[dict] = []
+        counter = 0
+        while True:
+            if len(pool) < self.pool_size or counter % self.reuse == 0:
+                index = counter * nworkers + wid
+                ds = _make_dataset(self.source, index + 1, stream_seed, int(self.difficulty.value),
+                                   self.height, self.width, self.supersample)
+                pool.append(ds[index])
+                pool = pool[-self.pool_size:]
+            counter += 1
+            item = pool[int(torch.randint(len(pool), (1,), generator=g))]
+            if self.augment:
+                if float(torch.rand(1, generator=g)) < 0.5:
+                    item = swap_flip(item)
+                item = photometric_augment(item, g)
+            yield _training_fields(item)
+
+
+def gt_nonoccluded(disparity: torch.Tensor, disparity_right: torch.Tensor, tol: float = 1.0) -> torch.Tensor:
+    """Pixels whose ground-truth match agrees with the right view's ground truth (not occluded).
+
+    disparity, disparity_right: :math:`(1, H, W)` left- and right-referenced; returns bool :math:`(1, H, W)`.
+    """
+    w = disparity.shape[-1]
+    x = torch.arange(w, dtype=disparity.dtype).expand_as(disparity)
+    xr = torch.round(x - disparity)
+    inside = (xr >= 0) & (xr <= w - 1)
+    d_r = disparity_right.gather(-1, xr.clamp(0, w - 1).long())
+    return inside & ((disparity - d_r).abs() <= tol)
+
+
+def _training_fields(item: dict) -> dict:
+    """The fields a training batch needs, with ``nonoccluded`` (bool (1, H, W)) for the Siamese loss."""
+    out = {k: item[k] for k in ("left", "right", "disparity", "valid")}
+    if "disparity_right" in item:
+        out["nonoccluded"] = item["valid"] & gt_nonoccluded(item["disparity"], item["disparity_right"])
+    elif "occlusion" in item:
+        out["nonoccluded"] = item["valid"] & ~item["occlusion"]
+    else:
+        out["nonoccluded"] = item["valid"]
+    return out
+
+
+class SyntheticStereoDataModule(L.LightningDataModule):
+    """On-the-fly data_gen training pairs (curriculum over difficulty) and a fixed validation set.
+
+    Args:
+        source: "data_gen" (default) or "random-shift" (tests).
+        height, width: training image size (pairs are rendered at this size).
+        batch_size: pairs per training batch.
+        pool_size, reuse: the training stream renders one new pair every ``reuse`` items into a pool of
+            ``pool_size`` recent pairs and draws items from the pool (see :class:`PooledCurriculumStream`).
+        val_pairs: size of the fixed validation set (rendered once, seed ``val_seed``, difficulties spread
+            evenly over 0..max).
+        val_height, val_width: validation image size (defaults to the training size).
+        seed: base seed of training pairs; val_seed: seed of the validation pairs.
+        curriculum_fraction: share of training over which difficulty ramps from ``min_difficulty`` to the
+            maximum (0 = no curriculum: full difficulty from the start).
+        min_difficulty: difficulty at the start of the curriculum.
+        num_workers: DataLoader workers rendering training pairs in parallel with the training step.
+        augment: swap-flip and photometric augmentation of training pairs.
+        supersample: data_gen anti-aliasing rays per pixel side (2 = like real photos; 1 is ~4x faster).
+    """
+
+    def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
+                 pool_size: int = 32, reuse: int = 4, val_pairs: int = 16, val_height: int | None = None,
+                 val_width: int | None = None, seed: int = 0, val_seed: int = 900_000,
+                 curriculum_fraction: float = 0.5, min_difficulty: int = 0, num_workers: int = 0,
+                 augment: bool = True, supersample: int = 2) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if source not in ("data_gen", "random-shift"):
+            raise ValueError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
+        ctx = multiprocessing.get_context("fork") if hasattr(os, "fork") else multiprocessing.get_context()
+        self._difficulty = ctx.Value("i", min_difficulty)
+        self._start = ctx.Value("l", 0)
+        self.val_items: list[dict] | None = None
+
+    def setup(self, stage: str | None = None) -> None:
+        hp = self.hparams
+        if self.val_items is None:
+            vh, vw = hp.val_height or hp.height, hp.val_width or hp.width
+            top = max_difficulty(hp.source)
+            self.val_items = []
+            for i in range(hp.val_pairs):  # a fixed mix of difficulties, same for every run
+                level = round(top * i / max(hp.val_pairs - 1, 1))
+                ds = _make_dataset(hp.source, hp.val_pairs, hp.val_seed, level, vh, vw, hp.supersample)
+                self.val_items.append(_training_fields(ds[i]))
+
+    def set_progress(self, progress: float, start_step: int | None = None) -> None:
+        """Set the training difficulty from the progress in [0, 1] (called by the curriculum callback);
+        ``start_step`` (the global step a run starts or resumes at) offsets the rendering seeds."""
+        hp = self.hparams
+        self._difficulty.value = difficulty_at(progress, max_difficulty(hp.source), hp.curriculum_fraction,
+                                               hp.min_difficulty)
+        if start_step is not None:
+            self._start.value = int(start_step)
+
+    @property
+    def difficulty(self) -> int:
+        return int(self._difficulty.value)
+
+    def train_dataloader(self) -> DataLoader:
+        hp = self.hparams
+        stream = PooledCurriculumStream(hp.source, hp.seed, hp.height, hp.width, hp.pool_size, hp.reuse,
+                                        hp.augment, self._difficulty, self._start, hp.supersample)
+        return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
+                          collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(self.val_items, batch_size=min(self.hparams.batch_size, len(self.val_items)) or 1,
+                          shuffle=False, num_workers=0, collate_fn=collate_pairs)

@@ -1,0 +1,256 @@
+"""LightningModules of the learned matchers: one ``_shared_step(batch, stage)`` per model family.
+
+Batches are dicts ``{"left", "right", "disparity", "valid", ...}`` (B first). Every module logs
+``{stage}/loss``, ``{stage}/epe`` and ``{stage}/bad2`` (and per-scale values where the model has scales), and
+on the first validation batch TensorBoard images of the left view, ground truth, prediction and error.
+Networks are stateless; losses are the pure functions of :mod:`stereonet.training.losses`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+
+from stereonet.models.dispnet import DispNet
+from stereonet.models.siamese import SiameseNet, siamese_cost_volume, siamese_pair_loss
+from stereonet.models.smd import SMDNet
+from stereonet.models.weights import load_weights
+from stereonet.training.callbacks import trainer_progress
+from stereonet.training.curriculum import training_progress
+from stereonet.training.losses import (
+    coarse_to_fine_weights,
+    disparity_errors,
+    mixture_nll,
+    multiscale_l1_loss,
+)
+
+
+def _colorize(disp: torch.Tensor, max_disp: float, valid: torch.Tensor | None = None) -> np.ndarray:
+    """(H, W) disparity -> (H, W, 3) uint8, through stereonet.viz when available."""
+    d = disp.detach().float().cpu().numpy()
+    v = None if valid is None else valid.cpu().numpy().astype(bool)
+    try:
+        from stereonet.viz import colorize_disparity
+
+        return colorize_disparity(d, max_disp, v)
+    except ImportError:  # viz not installed: a grey ramp is enough for TensorBoard
+        g = (np.clip(d / max(max_disp, 1e-6), 0, 1) * 255).astype(np.uint8)
+        return np.repeat(g[..., None], 3, axis=2)
+
+
+def _error_image(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> np.ndarray:
+    p, g = (t.detach().float().cpu().numpy() for t in (pred, gt))
+    v = valid.cpu().numpy().astype(bool)
+    try:
+        from stereonet.viz import error_map
+
+        return error_map(p, g, v)
+    except ImportError:
+        e = (np.clip(np.abs(p - g) / 4.0, 0, 1) * 255 * v).astype(np.uint8)
+        return np.repeat(e[..., None], 3, axis=2)
+
+
+class StereoModule(L.LightningModule):
+    """Shared training logic; subclasses set ``self.model`` and implement :meth:`compute`.
+
+    Args:
+        lr: AdamW learning rate (100-step linear warm-up, then cosine decay to 5% over the progress).
+        weight_decay: AdamW weight decay.
+        schedule_steps: horizon of every schedule (LR, loss weights) when ``trainer.max_steps`` is unset.
+    """
+
+    model_name = ""
+
+    def __init__(self, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+        super().__init__()
+        self.model: torch.nn.Module
+
+    # -- the model card that goes into every checkpoint, read by stereonet.models.weights.load_weights
+    def model_config(self) -> dict:
+        raise NotImplementedError
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["stereonet_model"] = {"model": self.model_name, "config": self.model_config()}
+
+    @property
+    def progress(self) -> float:
+        """Training progress in [0, 1]: steps over ``max_steps`` or time over ``max_time``, the larger."""
+        if self._trainer is None:
+            return training_progress(self.global_step, -1, self.hparams.schedule_steps)
+        return trainer_progress(self.trainer, self.hparams.schedule_steps)
+
+    def compute(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
+        """(loss, full-resolution prediction (B,1,H,W), extra scalars to log)."""
+        raise NotImplementedError
+
+    def _shared_step(self, batch: dict, stage: str) -> torch.Tensor:
+        loss, pred, extra = self.compute(batch)
+        errors = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
+        bs = batch["left"].shape[0]
+        on_step = stage == "train"
+        self.log(f"{stage}/loss", loss.detach(), prog_bar=True, batch_size=bs, on_step=on_step, on_epoch=not on_step)
+        self.log(f"{stage}/epe", errors["epe"], prog_bar=True, batch_size=bs, on_step=on_step, on_epoch=not on_step)
+        self.log(f"{stage}/bad2", errors["bad2"], batch_size=bs, on_step=on_step, on_epoch=not on_step)
+        for k, v in extra.items():
+            self.log(f"{stage}/{k}", v, batch_size=bs, on_step=on_step, on_epoch=not on_step)
+        if stage == "val" and not getattr(self, "_images_logged", True):
+            self._images_logged = True
+            self._log_images(batch, pred)
+        return loss
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        return self._shared_step(batch, "train")
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        self._shared_step(batch, "val")
+
+    def on_validation_epoch_start(self) -> None:
+        self._images_logged = False
+
+    def _log_images(self, batch: dict, pred: torch.Tensor) -> None:
+        logger = self.logger
+        if logger is None or not hasattr(logger.experiment, "add_image"):
+            return
+        gt, valid = batch["disparity"][0, 0], batch["valid"][0, 0]
+        top = float(gt[valid].max()) if bool(valid.any()) else 1.0
+        left = (batch["left"][0].detach().float().clamp(0, 1).cpu().numpy().transpose(1, 2, 0) * 255).astype(np.uint8)
+        if left.shape[2] == 1:
+            left = np.repeat(left, 3, axis=2)
+        images = {"left": left, "gt": _colorize(gt, top, valid), "prediction": _colorize(pred[0, 0], top),
+                  "error": _error_image(pred[0, 0], gt, valid)}
+        for name, img in images.items():
+            logger.experiment.add_image(f"val/{name}", img, self.global_step, dataformats="HWC")
+
+    def configure_optimizers(self):
+        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        warmup = 100
+
+        def factor(step: int) -> float:  # cosine over the training progress (steps or time, see progress)
+            if step < warmup:
+                return (step + 1) / warmup
+            return 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * self.progress))
+
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, factor)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+class DispNetModule(StereoModule):
+    """Trains :class:`~stereonet.models.dispnet.DispNet` with the coarse-to-fine multi-scale L1 loss.
+
+    Args:
+        max_disp, channels: the network's (see DispNet).
+        scale_weight_width: std (in scale steps) of the moving loss-weight bump.
+        lr, weight_decay, schedule_steps: see :class:`StereoModule`.
+    """
+
+    model_name = "dispnet"
+
+    def __init__(self, max_disp: int = 96, channels: int = 16, scale_weight_width: float = 1.0,
+                 lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+        super().__init__(lr, weight_decay, schedule_steps)
+        self.save_hyperparameters()
+        self.model = DispNet(max_disp=max_disp, channels=channels)
+
+    def model_config(self) -> dict:
+        return {"max_disp": self.hparams.max_disp, "channels": self.hparams.channels}
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor):
+        return self.model(left, right)
+
+    def compute(self, batch: dict):
+        out = self.model(batch["left"], batch["right"])
+        weights = coarse_to_fine_weights(self.progress, len(out.pyramid), self.hparams.scale_weight_width)
+        loss, per_scale = multiscale_l1_loss(out.pyramid, batch["disparity"], batch["valid"], weights)
+        extra = {}
+        for scale, pred in zip(DispNet.scales, out.pyramid):
+            errs = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
+            extra[f"epe_s{scale}"] = errs["epe"]
+            extra[f"bad2_s{scale}"] = errs["bad2"]
+        return loss, out.disparity, extra
+
+
+class SMDModule(StereoModule):
+    """Trains :class:`~stereonet.models.smd.SMDNet`: mixture NLL + ``backbone_weight`` x multi-scale L1.
+
+    Args:
+        max_disp, channels, hidden: the network's (see SMDNet).
+        backbone_weight: weight of the backbone's multi-scale L1 loss.
+        init_backbone: optional DispNet weights (slim .pt or .ckpt) to start the backbone from.
+    """
+
+    model_name = "smd"
+
+    def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
+                 backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
+                 lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+        super().__init__(lr, weight_decay, schedule_steps)
+        self.save_hyperparameters()
+        self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden))
+        if init_backbone:
+            backbone, _ = load_weights(init_backbone, expected="dispnet")
+            self.model.backbone.load_state_dict(backbone.state_dict())
+
+    def model_config(self) -> dict:
+        hp = self.hparams
+        return {"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden)}
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor):
+        return self.model(left, right)
+
+    def compute(self, batch: dict):
+        out = self.model(batch["left"], batch["right"])
+        nll = mixture_nll(out.mixture, batch["disparity"], batch["valid"])
+        weights = coarse_to_fine_weights(self.progress, len(out.backbone.pyramid), self.hparams.scale_weight_width)
+        l1, _ = multiscale_l1_loss(out.backbone.pyramid, batch["disparity"], batch["valid"], weights)
+        backbone_err = disparity_errors(out.backbone.disparity.detach(), batch["disparity"], batch["valid"])
+        extra = {"nll": nll.detach(), "backbone_epe": backbone_err["epe"],
+                 "uncertainty": out.uncertainty.detach().mean()}
+        return nll + self.hparams.backbone_weight * l1, out.disparity, extra
+
+
+class SiameseModule(StereoModule):
+    """Trains :class:`~stereonet.models.siamese.SiameseNet` on pixel pairs sampled from ground truth.
+
+    Validation predicts by winner-takes-all on the dot-product cost volume up to ``max_disp``.
+
+    Args:
+        channels, layers: the network's (see SiameseNet).
+        loss: "hinge" (margin ranking) or "bce".
+        margin, neg_low, neg_high, num_samples: see :func:`~stereonet.models.siamese.siamese_pair_loss`.
+        max_disp: disparity range of the validation WTA.
+    """
+
+    model_name = "siamese"
+
+    def __init__(self, channels: int = 32, layers: int = 4, loss: str = "hinge", margin: float = 0.2,
+                 neg_low: float = 1.5, neg_high: float = 8.0, num_samples: int = 2048, max_disp: int = 64,
+                 lr: float = 1e-3, weight_decay: float = 0.0, schedule_steps: int = 5000) -> None:
+        super().__init__(lr, weight_decay, schedule_steps)
+        self.save_hyperparameters()
+        if loss not in ("hinge", "bce"):
+            raise ValueError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
+        self.model = SiameseNet(channels=channels, layers=layers)
+
+    def model_config(self) -> dict:
+        return {"channels": self.hparams.channels, "layers": self.hparams.layers}
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        return self.model(image)
+
+    def compute(self, batch: dict):
+        hp = self.hparams
+        b = batch["left"].shape[0]
+        feats = self.model(torch.cat([batch["left"], batch["right"]]))  # 2BxFxHxW: one pass for both views
+        feat_left, feat_right = feats[:b], feats[b:]
+        valid = batch.get("nonoccluded", batch["valid"])
+        loss = siamese_pair_loss(feat_left, feat_right, batch["disparity"], valid, hp.num_samples, hp.margin,
+                                 hp.neg_low, hp.neg_high, hp.loss)
+        with torch.no_grad():
+            max_disp = min(hp.max_disp, batch["left"].shape[-1] - 1)
+            cost = siamese_cost_volume(feat_left.detach(), feat_right.detach(), max_disp)
+            pred = cost.argmin(dim=1, keepdim=True).to(feat_left.dtype)
+        return loss, pred, {}
