@@ -6,13 +6,16 @@ Peak memory: ``tracemalloc`` does not see torch's (or OpenCV's, or numba's) nati
 ``ru_maxrss`` (the process-wide high-water mark) is read before and after, which catches a peak the
 sampler missed (a kernel holding the GIL) whenever that peak is a new high for the process. The number
 reported is the peak RSS during the call minus the RSS just before it: the extra memory the call needed.
-Memory that an allocator keeps cached from an earlier call is not counted again, so it is a lower bound
-for methods that run after a bigger one; run a single method for an exact figure.
+Before each measurement glibc's ``malloc_trim(0)`` hands freed heap memory back to the system, so buffers
+freed by an earlier call and reused by this one are counted again; allocators that cache on their own
+(numba, OpenMP pools) can still make the figure a lower bound. Run a single method for an exact figure.
 """
 
 from __future__ import annotations
 
 import argparse
+import ctypes
+import ctypes.util
 import os
 import resource
 import sys
@@ -64,6 +67,23 @@ def weights_available(name: str) -> bool:
     return default_weights_path(name.split("-")[0]).is_file()
 
 
+def _load_libc():
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return libc if hasattr(libc, "malloc_trim") else None
+    except OSError:
+        return None
+
+
+_LIBC = _load_libc()
+
+
+def release_free_memory() -> None:
+    """Return freed heap memory to the system (glibc ``malloc_trim``; a no-op elsewhere)."""
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
+
+
 def rss_bytes() -> int:
     """Current resident set size of this process in bytes (0 where /proc is missing)."""
     try:
@@ -90,6 +110,7 @@ class PeakMemory:
             self._peak = max(self._peak, rss_bytes())
 
     def __enter__(self) -> PeakMemory:
+        release_free_memory()
         self._base = rss_bytes()
         self._peak = self._base
         self._maxrss_before = max_rss_bytes()

@@ -1,0 +1,45 @@
+"""stereonet.bench: BENCHMARKS.md with median tables, ratios to opencv-sgbm and plots, on a tiny fake set."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+from stereonet import bench
+
+HERE = Path(__file__).resolve().parent
+
+
+def _tiny_dataset():
+    spec = importlib.util.spec_from_file_location("cli_test_eval", HERE / "test_eval.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.tiny_dataset
+
+
+def test_bench_writes_report(tmp_path, monkeypatch):
+    tiny = _tiny_dataset()
+    real_run = bench.run_evaluation
+    monkeypatch.setattr(bench, "run_evaluation", lambda *a, **k: real_run(*a, **{**k, "load": tiny}))
+    out, docs = tmp_path / "BENCHMARKS.md", tmp_path / "docs" / "bench"
+    code = bench.main(["--methods", "opencv-bm,opencv-sgbm", "--synthetic", "2", "--no-real", "--out", str(out),
+                       "--docs", str(docs), "--no-progress"])
+    assert code == 0
+    text = out.read_text()
+    assert "## synthetic: median over pairs" in text and "### synthetic:2" in text
+    header = next(ln for ln in text.splitlines() if ln.startswith("| method | pairs"))
+    col = [c.strip() for c in header.split("|")].index("× sgbm time")
+    rows = [[c.strip() for c in ln.split("|")] for ln in text.splitlines() if ln.startswith("| `opencv-")]
+    ratios = {r[1]: r[col] for r in rows if len(r) > col}
+    assert ratios["`opencv-sgbm`"] == "1.0"  # the reference against itself
+    assert float(ratios["`opencv-bm`"]) > 0
+    for name in ("speed_accuracy_synthetic.png", "bad2_per_dataset.png"):
+        assert (docs / name).stat().st_size > 0
+        assert f"(docs/bench/{name})" in text
+    assert list(docs.glob("panel_*.png"))
+
+
+def test_bench_bad_method_is_one_line(capsys):
+    assert bench.main(["--methods", "nonsense", "--no-real", "--synthetic", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "valid names" in err[0]
