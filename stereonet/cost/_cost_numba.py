@@ -82,43 +82,35 @@ def pixel_product(left, right, n_disp):
     return out
 
 
+@numba.njit(cache=True)
+def _running_mean(src, dst, r):
+    """dst[i, :] = mean of src[max(i - r, 0) : min(i + r, N - 1) + 1, :] (float64 running sums)."""
+    N, D = src.shape
+    acc = np.zeros(D, np.float64)
+    for i in range(min(r, N)):
+        for d in range(D):
+            acc[d] += src[i, d]
+    for i in range(N):
+        if i + r < N:
+            for d in range(D):
+                acc[d] += src[i + r, d]
+        if i - r - 1 >= 0:
+            for d in range(D):
+                acc[d] -= src[i - r - 1, d]
+        n = min(i + r, N - 1) - max(i - r, 0) + 1
+        for d in range(D):
+            dst[i, d] = acc[d] / n
+
+
 @numba.njit(parallel=True, cache=True)
 def box_mean_hwd(vol, window):
     """In-place mean over the in-image part of a window x window square, per disparity."""
     H, W, D = vol.shape
     r = window // 2
     for x in prange(W):
-        col = vol[:, x, :].copy()  # HxD
-        acc = np.zeros(D, np.float64)
-        for y in range(min(r, H)):
-            for d in range(D):
-                acc[d] += col[y, d]
-        for y in range(H):
-            if y + r < H:
-                for d in range(D):
-                    acc[d] += col[y + r, d]
-            if y - r - 1 >= 0:
-                for d in range(D):
-                    acc[d] -= col[y - r - 1, d]
-            n = min(y + r, H - 1) - max(y - r, 0) + 1
-            for d in range(D):
-                vol[y, x, d] = acc[d] / n
+        _running_mean(vol[:, x, :].copy(), vol[:, x, :], r)  # HxD column
     for y in prange(H):
-        row = vol[y].copy()  # WxD
-        acc = np.zeros(D, np.float64)
-        for x in range(min(r, W)):
-            for d in range(D):
-                acc[d] += row[x, d]
-        for x in range(W):
-            if x + r < W:
-                for d in range(D):
-                    acc[d] += row[x + r, d]
-            if x - r - 1 >= 0:
-                for d in range(D):
-                    acc[d] -= row[x - r - 1, d]
-            n = min(x + r, W - 1) - max(x - r, 0) + 1
-            for d in range(D):
-                vol[y, x, d] = acc[d] / n
+        _running_mean(vol[y].copy(), vol[y], r)  # WxD row
 
 
 @numba.njit(parallel=True, cache=True)

@@ -42,3 +42,51 @@ def uniqueness_mask(cost: torch.Tensor, disp: torch.Tensor, ratio: float = 0.1) 
     best = cost.gather(1, disp.round().long().clamp(0, cost.shape[1] - 1))
     second = cost.masked_fill(~far, float("inf")).amin(dim=1, keepdim=True)
     return best <= (1.0 - ratio) * second
+
+
+def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniqueness: float = 0.0,
+                     backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """WTA + sub-pixel + uniqueness + right-reference WTA in one call.
+
+    ``backend="auto"`` runs one numba pass (:mod:`stereonet.optimize._select_numba`) for a float32 CPU
+    volume without gradient, else the torch functions :func:`wta`, :func:`~stereonet.optimize.subpixel.
+    subpixel_refine`, :func:`uniqueness_mask` and :func:`~stereonet.optimize.lr_check.wta_right`.
+
+    Args:
+        cost: :math:`(B, D, H, W)` left-reference costs.
+        subpixel: ``"parabola"``, ``"equiangular"`` or None.
+        uniqueness: ratio for :func:`uniqueness_mask` (0 keeps every non-tied pixel).
+        backend: ``"auto"``, ``"torch"`` or ``"numba"``.
+
+    Returns:
+        ``(disp, min_cost, unique, disp_right)``, each :math:`(B, 1, H, W)` (``unique`` bool).
+    """
+    from stereonet.optimize.lr_check import wta_right
+    from stereonet.optimize.subpixel import subpixel_refine
+
+    check_cost_volume(cost)
+    methods = {None: 0, "parabola": 1, "equiangular": 2}
+    if subpixel not in methods:
+        raise StereoInputError(f"subpixel: expected 'parabola', 'equiangular' or None, got {subpixel!r}")
+    if not 0.0 <= uniqueness < 1.0:
+        raise StereoInputError(f"uniqueness: expected 0 <= uniqueness < 1, got {uniqueness}")
+    if backend not in ("auto", "torch", "numba"):
+        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
+    use_numba = backend == "numba" or (backend == "auto" and cost.device.type == "cpu"
+                                       and cost.dtype == torch.float32
+                                       and not (torch.is_grad_enabled() and cost.requires_grad))
+    if not use_numba:
+        disp, min_cost = wta(cost)
+        unique = uniqueness_mask(cost, disp, uniqueness)
+        if subpixel is not None:
+            disp = subpixel_refine(cost, disp, subpixel)
+        return disp, min_cost, unique, wta_right(cost)
+    from stereonet.optimize._select_numba import select_hwd
+
+    outs = []
+    for b in range(cost.shape[0]):
+        vol = cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
+        outs.append([torch.from_numpy(a) for a in select_hwd(vol, methods[subpixel], float(uniqueness))])
+    disp, min_cost, unique, disp_right = (torch.stack([o[i] for o in outs])[:, None].to(cost.device)
+                                          for i in range(4))
+    return disp.to(cost.dtype), min_cost.to(cost.dtype), unique, disp_right.to(cost.dtype)

@@ -1,0 +1,121 @@
+"""Local matchers (``bm-*``) and semi-global matching (``sgm``) behind the matcher signature.
+
+Pipeline of every ``bm-*`` method (textbook block matching):
+cost volume (window mean of the cost) -> WTA -> sub-pixel (parabola) -> uniqueness ratio -> left-right
+check against the right-reference WTA of the same volume (``|dL - dR| <= lr_tol``); invalid pixels are
+left invalid (``fill=False``; eval.py has ``--fill``). ``sgm`` adds semi-global aggregation of a census
+(or AD-census) cost before the selection, and a median + speckle filter after it.
+
+``sgm`` defaults (chosen on the real pairs of ../shared/data against opencv-sgbm, see
+scripts/bench_classical.py): see :data:`SGM_DEFAULTS`.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from stereonet.cost import build_cost_volume
+from stereonet.matchers import register
+from stereonet.optimize.fill import fill_occlusions
+from stereonet.optimize.filters import median_filter, speckle_filter
+from stereonet.optimize.lr_check import left_right_check
+from stereonet.optimize.sgm import sgm_aggregate
+from stereonet.optimize.wta import select_disparity
+from stereonet.types import StereoOutput
+
+BM_DEFAULTS = dict(subpixel="parabola", uniqueness=0.1, lr_tol=1.0, median=0, speckle_size=0,
+                   speckle_diff=1.0, fill=False)
+
+SGM_DEFAULTS = dict(cost="census", census_window=5, window=1, P1=1.0, P2=8.0, p2_alpha=0.0, paths=8,
+                    subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3, speckle_size=100,
+                    speckle_diff=1.0, fill=False)
+
+
+def select_and_filter(cost: torch.Tensor, *, subpixel: str | None = "parabola", uniqueness: float = 0.1,
+                      lr_tol: float | None = 1.0, median: int = 0, speckle_size: int = 0,
+                      speckle_diff: float = 1.0, fill: bool = False) -> StereoOutput:
+    """The local back end shared by ``bm-*`` and ``sgm``.
+
+    Args:
+        cost: :math:`(B, D, H, W)` (aggregated) costs.
+        subpixel: ``"parabola"``, ``"equiangular"`` or None.
+        uniqueness: uniqueness ratio (0 = off).
+        lr_tol: LR-check tolerance in pixels (None = no LR check).
+        median: median filter size on the disparity (0 = off), over valid pixels only.
+        speckle_size: speckle filter region size (0 = off), regions with steps <= ``speckle_diff``.
+        fill: fill invalid pixels with :func:`~stereonet.optimize.fill.fill_occlusions` (they stay invalid);
+            otherwise invalid pixels keep their raw WTA disparity.
+
+    Returns:
+        :class:`StereoOutput` with ``cost_volume=cost`` and extras ``disparity_right`` (right-reference
+        WTA), ``lr_valid`` and ``unique`` (bool masks).
+    """
+    disp, _, unique, disp_right = select_disparity(cost, subpixel, uniqueness)
+    lr_ok = left_right_check(disp, disp_right, lr_tol) if lr_tol is not None else torch.ones_like(unique)
+    valid = unique & lr_ok
+    if median:
+        disp = median_filter(disp, median, valid)
+    if speckle_size:
+        valid = speckle_filter(disp, valid, speckle_size, speckle_diff)
+    if fill:
+        disp = fill_occlusions(disp, valid)
+    return StereoOutput(disp, valid, cost_volume=cost,
+                        extras={"disparity_right": disp_right, "lr_valid": lr_ok, "unique": unique})
+
+
+def _split(options: dict, defaults: dict) -> tuple[dict, dict]:
+    merged = {**defaults, **options}
+    back = {k: merged.pop(k) for k in list(merged) if k in BM_DEFAULTS}
+    return merged, back
+
+
+def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
+                   **options) -> StereoOutput:
+    """Block matching with ``cost`` over ``window`` + the local back end (:func:`select_and_filter`)."""
+    cost_opts, back = _split(options, BM_DEFAULTS)
+    vol = build_cost_volume(left, right, max_disp, cost=cost, window=window, **cost_opts)
+    return select_and_filter(vol, **back)
+
+
+def _bm(name: str, cost: str, window: int, description: str, **fixed):
+    @register(name, kind="classical", description=description)
+    def run(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
+        opts = {"window": window, **fixed, **options}
+        return block_matching(left, right, max_disp, cost, opts.pop("window"), **opts)
+
+    run.__name__ = name.replace("-", "_")
+    run.__doc__ = f"{description}. Options: window, subpixel, uniqueness, lr_tol, median, speckle_size, fill."
+    return run
+
+
+bm_sad = _bm("bm-sad", "sad", 9, "Block matching, SAD 9x9 + WTA, parabola, uniqueness, LR check")
+bm_ssd = _bm("bm-ssd", "ssd", 9, "Block matching, SSD 9x9 + WTA, parabola, uniqueness, LR check")
+bm_zsad = _bm("bm-zsad", "zsad", 9, "Block matching, zero-mean SAD 9x9 + WTA, parabola, uniqueness, LR check")
+bm_lssad = _bm("bm-lssad", "lssad", 9, "Block matching, locally scaled SAD 9x9 + WTA, parabola, uniqueness, LR")
+bm_ncc = _bm("bm-ncc", "ncc", 9, "Block matching, 1 - NCC 9x9 + WTA, parabola, uniqueness, LR check")
+bm_census = _bm("bm-census", "census", 5, "Block matching, census 7x7 Hamming averaged 5x5 + WTA, LR check",
+                census_window=7)
+bm_adaptive = _bm("bm-adaptive", "adaptive", 7,
+                  "Block matching, SAD over 5 shiftable 7x7 windows (centre + best 2 corners), LR check")
+
+
+@register("sgm", kind="classical",
+          description="Semi-global matching: census 5x5, 8 paths, P1/P2, parabola, uniqueness, LR, median, speckle")
+def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
+    """Semi-global matching (Hirschmüller 2008) on a census (default) or any ``cost`` volume.
+
+    Options (defaults in :data:`SGM_DEFAULTS`): ``cost``, ``census_window``, ``window`` (cost aggregation,
+    1 = pixelwise), ``P1``, ``P2`` (in cost units: Hamming bits for census), ``p2_alpha`` (P2 adaptation
+    to the left image gradient), ``paths`` (4/8/16), then the back-end options of
+    :func:`select_and_filter`. The returned ``cost_volume`` is the aggregated cost.
+    """
+    opts = {**SGM_DEFAULTS, **options}
+    P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
+    cost_opts, back = _split(opts, {})
+    cost_name, window = cost_opts.pop("cost"), cost_opts.pop("window")
+    if cost_name not in ("census", "census_ad"):
+        cost_opts.pop("census_window", None)
+    vol = build_cost_volume(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
+    agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha)
+    del vol
+    return select_and_filter(agg, **back)
