@@ -38,44 +38,58 @@ def _send(h, slope, truncation, out):  # pragma: no cover - compiled
         out[d] -= m
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def bp_level(cost, from_left, from_right, from_up, from_down, slopes, truncation, iterations):  # pragma: no cover
     """Run ``iterations`` synchronous min-sum updates in place.
 
     cost and messages ``(B, H, W, D)``; ``slopes (B, H, W, 4)`` = λ·w to the right, left, down, up neighbour.
     """
     B, H, W, D = cost.shape
+    # two buffer sets, swapped each iteration; border slots that receive no message stay 0
+    src_l, src_r, src_u, src_d = from_left.copy(), from_right.copy(), from_up.copy(), from_down.copy()
+    new_left = np.zeros_like(from_left)
+    new_right = np.zeros_like(from_right)
+    new_up = np.zeros_like(from_up)
+    new_down = np.zeros_like(from_down)
     for _ in range(iterations):
-        new_left = np.zeros_like(from_left)
-        new_right = np.zeros_like(from_right)
-        new_up = np.zeros_like(from_up)
-        new_down = np.zeros_like(from_down)
-        for row in prange(B * H):
-            b = row // H
-            y = row % H
-            total = np.empty(D)
-            h = np.empty(D)
-            for x in range(W):
+        _bp_iteration(cost, src_l, src_r, src_u, src_d, new_left, new_right, new_up, new_down, slopes, truncation)
+        src_l, new_left = new_left, src_l
+        src_r, new_right = new_right, src_r
+        src_u, new_up = new_up, src_u
+        src_d, new_down = new_down, src_d
+    from_left[:] = src_l
+    from_right[:] = src_r
+    from_up[:] = src_u
+    from_down[:] = src_d
+
+
+@njit(parallel=True, cache=True)
+def _bp_iteration(cost, from_left, from_right, from_up, from_down, new_left, new_right, new_up, new_down,
+                  slopes, truncation):  # pragma: no cover - compiled
+    """One synchronous update: read the incoming messages ``from_*``, write the next ones into ``new_*``."""
+    B, H, W, D = cost.shape
+    for row in prange(B * H):
+        b = row // H
+        y = row % H
+        total = np.empty(D)
+        h = np.empty(D)
+        for x in range(W):
+            for d in range(D):
+                total[d] = (cost[b, y, x, d] + from_left[b, y, x, d] + from_right[b, y, x, d]
+                            + from_up[b, y, x, d] + from_down[b, y, x, d])
+            if x + 1 < W:
                 for d in range(D):
-                    total[d] = (cost[b, y, x, d] + from_left[b, y, x, d] + from_right[b, y, x, d]
-                                + from_up[b, y, x, d] + from_down[b, y, x, d])
-                if x + 1 < W:
-                    for d in range(D):
-                        h[d] = total[d] - from_right[b, y, x, d]
-                    _send(h, slopes[b, y, x, 0], truncation, new_left[b, y, x + 1])
-                if x >= 1:
-                    for d in range(D):
-                        h[d] = total[d] - from_left[b, y, x, d]
-                    _send(h, slopes[b, y, x, 1], truncation, new_right[b, y, x - 1])
-                if y + 1 < H:
-                    for d in range(D):
-                        h[d] = total[d] - from_down[b, y, x, d]
-                    _send(h, slopes[b, y, x, 2], truncation, new_up[b, y + 1, x])
-                if y >= 1:
-                    for d in range(D):
-                        h[d] = total[d] - from_up[b, y, x, d]
-                    _send(h, slopes[b, y, x, 3], truncation, new_down[b, y - 1, x])
-        from_left[:] = new_left
-        from_right[:] = new_right
-        from_up[:] = new_up
-        from_down[:] = new_down
+                    h[d] = total[d] - from_right[b, y, x, d]
+                _send(h, slopes[b, y, x, 0], truncation, new_left[b, y, x + 1])
+            if x >= 1:
+                for d in range(D):
+                    h[d] = total[d] - from_left[b, y, x, d]
+                _send(h, slopes[b, y, x, 1], truncation, new_right[b, y, x - 1])
+            if y + 1 < H:
+                for d in range(D):
+                    h[d] = total[d] - from_down[b, y, x, d]
+                _send(h, slopes[b, y, x, 2], truncation, new_up[b, y + 1, x])
+            if y >= 1:
+                for d in range(D):
+                    h[d] = total[d] - from_up[b, y, x, d]
+                _send(h, slopes[b, y, x, 3], truncation, new_down[b, y - 1, x])
