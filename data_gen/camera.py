@@ -93,6 +93,8 @@ class Camera:
     # -- projection -------------------------------------------------------------------------------
     def to_camera(self, points: torch.Tensor) -> torch.Tensor:
         """World points :math:`(N, 3)` to camera coordinates :math:`(N, 3)`."""
+        if not np.any(self.R - np.eye(3)):
+            return points + torch.as_tensor(self.t, dtype=points.dtype)
         R = torch.as_tensor(self.R, dtype=points.dtype)
         t = torch.as_tensor(self.t, dtype=points.dtype)
         return points @ R.T + t

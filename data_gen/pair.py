@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, shade, visible_from
 from data_gen.scene import (
@@ -60,18 +60,13 @@ def _photometric(rng: np.random.Generator, level: dict) -> dict:
 
 
 def _gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Separable Gaussian blur of ``img`` :math:`(C, H, W)` (reflect padding)."""
+    """Gaussian blur of ``img`` :math:`(C, H, W)` (OpenCV, reflect-101 borders)."""
     if sigma < 0.05:
         return img
     r = max(1, int(math.ceil(2.5 * sigma)))
-    x = torch.arange(-r, r + 1, dtype=img.dtype)
-    k = torch.exp(-0.5 * (x / sigma) ** 2)
-    k = k / k.sum()
-    c = img.shape[0]
-    out = F.pad(img[None], (r, r, r, r), mode="reflect")
-    out = F.conv2d(out, k.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
-    out = F.conv2d(out, k.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
-    return out[0]
+    arr = img.permute(1, 2, 0).contiguous().numpy()  # HxWxC
+    out = cv2.GaussianBlur(arr, (2 * r + 1, 2 * r + 1), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT_101)
+    return torch.from_numpy(out.reshape(arr.shape)).permute(2, 0, 1).to(img.dtype)
 
 
 def apply_camera_response(img: torch.Tensor, params: dict, photometric: bool = True, blur: bool = True,
@@ -104,7 +99,7 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, 
                             indexing="ij")
     ids_l = left["ids"].reshape(-1)
     hit_l = ids_l >= 0
-    pts_l = left["points"]
+    pts_l = left["points"].double()
     corr, z_r = cam_r.project(pts_l)  # HWx2 right pixel of each left pixel's surface point
     disp = xs.reshape(-1) - corr[:, 0]
     visible = visible_from(scene, cam_r, pts_l) & hit_l
@@ -113,12 +108,12 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, 
         valid &= disp > 0
     # disparity of the right view, right-referenced: x_left = x_right + d_right
     ids_r = right["ids"].reshape(-1)
-    corr_l, z_l = cam_l.project(right["points"])
+    corr_l, z_l = cam_l.project(right["points"].double())
     disp_r = corr_l[:, 0] - xs.reshape(-1)
     valid_r = (ids_r >= 0) & (z_l > 0)
     # specular mask: shiny in the left view, or at the same surface point seen from the right camera
     albedo = torch.ones_like(pts_l)
-    _, spec_r_at_l = shade(scene, ids_l, pts_l, left["normals"], albedo, cam_r.center)
+    _, spec_r_at_l = shade(scene, ids_l, pts_l, left["normals"].double(), albedo, cam_r.center)
     specular = (left["specular"].reshape(-1) > SPECULAR_MASK_THRESHOLD) | (spec_r_at_l > SPECULAR_MASK_THRESHOLD)
 
     def img(x, dtype=torch.float32):
@@ -128,7 +123,7 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, 
     return dict(
         disparity=img(torch.where(valid, disp, zero)), valid=img(valid, torch.bool),
         disparity_right=img(torch.where(valid_r, disp_r, zero)), valid_right=img(valid_r, torch.bool),
-        occlusion=img(~visible & valid, torch.bool), depth=img(torch.where(hit_l, left["depth"].reshape(-1), zero)),
+        occlusion=img(~visible & valid, torch.bool), depth=img(torch.where(hit_l, left["depth"].reshape(-1).double(), zero)),
         specular=img(specular & hit_l, torch.bool),
         correspondence=torch.where(valid[:, None], corr, zero).T.reshape(2, h, w).float(),
     )

@@ -17,7 +17,6 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from data_gen.camera import Camera, GridRays, PointRays
 from data_gen.scene import Scene
@@ -69,43 +68,66 @@ def raycast_grid(scene: Scene, grid: GridRays) -> tuple[torch.Tensor, torch.Tens
     return t_best, ids, ranges
 
 
-def surface_fields(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Tensor, ranges: list,
+def sorted_surface(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Tensor,
+                   with_albedo: bool = True) -> dict[str, torch.Tensor]:
+    """Surface data of the hits of :func:`raycast_grid`, with the samples sorted by object id.
+
+    Sorting once makes every object's samples one contiguous slice (no per-object gathers or scatters).
+
+    Returns a dict: ``order`` :math:`(N,)` (flat sample index of each sorted entry), ``ids`` :math:`(N,)`
+    sorted, ``points``, ``normals``, ``dirs`` :math:`(N, 3)`, ``uv`` :math:`(N, 2)`, and ``albedo``
+    :math:`(N, 3)` when ``with_albedo``. Misses (id -1) come first, with zeros.
+    """
+    h, w = grid.shape
+    ids_flat = ids.reshape(-1)
+    order = torch.argsort(ids_flat)
+    counts = torch.bincount(ids_flat + 1, minlength=len(scene.objects) + 1).tolist()
+    rows = torch.div(order, w, rounding_mode="floor")
+    cols = order - rows * w
+    d = grid.dirs_at(rows, cols)
+    tt = t.reshape(-1)[order]
+    miss = counts[0]
+    tt[:miss] = 0.0
+    p = torch.as_tensor(grid.origin, dtype=grid.dtype) + tt[:, None] * d
+    normals = torch.zeros_like(p)
+    uv = torch.zeros(p.shape[0], 2, dtype=p.dtype)
+    albedo = torch.zeros_like(p) if with_albedo else None
+    # angular spacing of neighbouring samples (radians, at the image centre) for texture footprints
+    spacing = float(abs(grid.xs_np[1] - grid.xs_np[0]) if len(grid.xs_np) > 1 else 1.0) / float(grid.camera.K[0, 0])
+    start = miss
+    for k, obj in enumerate(scene.objects):
+        stop = start + counts[k + 1]
+        if stop > start:
+            pk, dk = p[start:stop], d[start:stop]
+            nk, uvk = obj.surface(pk, dk)
+            normals[start:stop] = nk
+            uv[start:stop] = uvk
+            if albedo is not None:
+                fp = _footprint(tt[start:stop] * torch.linalg.norm(dk, dim=-1), nk, dk, spacing)
+                albedo[start:stop] = obj.material.albedo(uvk, fp)
+        start = stop
+    out = {"order": order, "ids": ids_flat[order], "points": p, "normals": normals, "dirs": d, "uv": uv}
+    if albedo is not None:
+        out["albedo"] = albedo
+    return out
+
+
+def unsort(values: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
+    """Inverse of ``values = x[order]``: returns x."""
+    out = torch.empty_like(values)
+    out[order] = values
+    return out
+
+
+def surface_fields(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Tensor, ranges: list | None = None,
                    with_albedo: bool = True) -> dict[str, torch.Tensor]:
     """Points, normals, uv (and albedo) of the hits found by :func:`raycast_grid`, flattened to :math:`(H' W', k)`.
 
-    Misses get zeros (their ``ids`` are -1).
+    Misses get zeros (their ``ids`` are -1). ``ranges`` is unused (kept for compatibility).
     """
-    h, w = grid.shape
-    n = h * w
-    out = {"points": torch.zeros(n, 3, dtype=grid.dtype), "normals": torch.zeros(n, 3, dtype=grid.dtype),
-           "uv": torch.zeros(n, 2, dtype=grid.dtype)}
-    if with_albedo:
-        out["albedo"] = torch.zeros(n, 3, dtype=grid.dtype)
-    origin = torch.as_tensor(grid.origin, dtype=grid.dtype)
-    # angular spacing of neighbouring samples (radians, at the image centre) for texture footprints
-    spacing = float(abs(grid.xs_np[1] - grid.xs_np[0]) if len(grid.xs_np) > 1 else 1.0) / float(grid.camera.K[0, 0])
-    for k, (obj, rng) in enumerate(zip(scene.objects, ranges)):
-        if rng is None:
-            continue
-        r0, r1, c0, c1 = rng
-        nz = (ids[r0:r1, c0:c1] == k).nonzero()
-        if nz.numel() == 0:
-            continue
-        rows = nz[:, 0] + r0
-        cols = nz[:, 1] + c0
-        flat = rows * w + cols
-        d = grid.dirs_at(rows, cols)
-        p = origin + t[rows, cols][:, None] * d
-        normals, uv = obj.surface(p, d)
-        out["points"][flat] = p
-        out["normals"][flat] = normals
-        out["uv"][flat] = uv
-        if with_albedo:
-            dist = t[rows, cols] * torch.linalg.norm(d, dim=-1)
-            cos = (normals * d).sum(-1).abs() / torch.linalg.norm(d, dim=-1)
-            footprint = dist * spacing / cos.clamp(min=0.05)  # one sample's size on the surface (mm)
-            out["albedo"][flat] = obj.material.albedo(uv, footprint)
-    return out
+    srt = sorted_surface(scene, grid, t, ids, with_albedo)
+    keys = ("points", "normals", "uv") + (("albedo",) if with_albedo else ())
+    return {k: unsort(srt[k], srt["order"]) for k in keys}
 
 
 def _first_hits(scene: Scene, rays: PointRays, pixels: torch.Tensor | None = None,
@@ -137,12 +159,15 @@ def _first_hits(scene: Scene, rays: PointRays, pixels: torch.Tensor | None = Non
     return t_best, ids
 
 
-def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor) -> RayHits:
-    """First hits of arbitrary rays (every object against every ray).
+def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor, pixels: torch.Tensor | None = None,
+            camera: Camera | None = None) -> RayHits:
+    """First hits of arbitrary rays.
 
     Args:
         origins: :math:`(N, 3)` or one shared origin :math:`(3,)`; dirs: :math:`(N, 3)` (any length; ``t`` is
             in units of ``|dirs|``).
+        pixels, camera: optional pixel coordinates :math:`(N, 2)` of the rays in ``camera`` (rays through its
+            centre); then each object is tested only on the rays inside its projected bounding box.
     """
     if dirs.dim() != 2 or dirs.shape[1] != 3:
         raise ValueError(f"dirs: expected shape (N, 3), got {tuple(dirs.shape)}")
@@ -150,7 +175,7 @@ def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor) -> RayHits:
     if origins.shape not in ((3,), dirs.shape):
         raise ValueError(f"origins: expected shape (3,) or {tuple(dirs.shape)}, got {tuple(origins.shape)}")
     rays = PointRays(origins, dirs)
-    t, ids = _first_hits(scene, rays)
+    t, ids = _first_hits(scene, rays, pixels, camera)
     n = dirs.shape[0]
     points = torch.zeros(n, 3, dtype=dirs.dtype)
     normals = torch.zeros(n, 3, dtype=dirs.dtype)
@@ -165,7 +190,29 @@ def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor) -> RayHits:
     return RayHits(t, ids, points, normals, uv)
 
 
-def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: float = 1e-5) -> torch.Tensor:
+def _footprint(dist: torch.Tensor, normals: torch.Tensor, dirs: torch.Tensor, spacing: float) -> torch.Tensor:
+    """Size on the surface (scene units) of one image sample: ``dist * spacing / cos(incidence)``."""
+    dnorm = torch.linalg.norm(dirs, dim=-1)
+    cos = (normals * dirs).sum(-1).abs() / dnorm
+    return dist * spacing / cos.clamp(min=0.05)
+
+
+def albedo_of_hits(scene: Scene, hits: RayHits, dirs: torch.Tensor, spacing: float | None = None) -> torch.Tensor:
+    """Albedo :math:`(N, 3)` of :class:`RayHits`; ``spacing`` (radians between neighbouring rays) band-limits
+    the textures to the rays' footprint."""
+    albedo = torch.zeros_like(hits.points)
+    for k, obj in enumerate(scene.objects):
+        sel = (hits.ids == k).nonzero()[:, 0]
+        if sel.numel():
+            fp = None
+            if spacing is not None:
+                d = dirs[sel]
+                fp = _footprint(hits.t[sel] * torch.linalg.norm(d, dim=-1), hits.normals[sel], d, spacing)
+            albedo[sel] = obj.material.albedo(hits.uv[sel], fp)
+    return albedo
+
+
+def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: float = 1e-4) -> torch.Tensor:
     """Bool :math:`(N,)`: True where world ``points`` :math:`(N, 3)` are seen by ``camera``: in front of it,
     projecting inside its image, and not hidden by a nearer surface of ``scene``."""
     pix, z = camera.project(points)
@@ -222,37 +269,67 @@ def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.
     return rgb, spec
 
 
+def edge_pixels(ids: torch.Tensor) -> torch.Tensor:
+    """Bool :math:`(H, W)`: pixels whose object id differs from one of their 8 neighbours."""
+    pad = torch.nn.functional.pad(ids[None, None].double(), (1, 1, 1, 1), mode="replicate")[0, 0]
+    h, w = ids.shape
+    edge = torch.zeros_like(ids, dtype=torch.bool)
+    centre = pad[1:h + 1, 1:w + 1]
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            if dy != 1 or dx != 1:
+                edge |= pad[dy:dy + h, dx:dx + w] != centre
+    return edge
+
+
+def _pixel_rays(camera: Camera, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """World directions :math:`(N, 3)` (camera-frame z = 1) of the rays through pixel coordinates ``x, y``."""
+    xn, yn = camera.pixel_to_normalized(x.double(), y.double())
+    d_cam = torch.stack([xn, yn, torch.ones_like(xn)], dim=-1)
+    return (d_cam @ torch.as_tensor(camera.R)).to(x.dtype)  # rows R^T d_cam
+
+
 def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bool = True,
                 extra_light_fn: Callable | None = None, geometry: bool = True,
                 dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
     """Render one camera.
 
-    The image averages ``supersample x supersample`` rays per pixel; the geometry (when ``geometry``) comes
-    from one float64 ray through each pixel centre, so it is exact at pixel centres.
+    One ray through each pixel centre gives the geometry (exact at pixel centres) and the shading of
+    pixels inside a surface (textures are band-limited to the pixel footprint, mip-map style). Pixels on
+    an object boundary (an 8-neighbour sees another object) are re-rendered with ``supersample x
+    supersample`` rays and averaged (adaptive anti-aliasing).
 
-    Returns a dict with ``image`` :math:`(3, H, W)` radiance clipped to [0, 1], and when ``geometry``:
-    ``depth`` :math:`(H, W)` (z in this camera's frame, inf = miss), ``ids`` :math:`(H, W)` long,
-    ``points`` and ``normals`` :math:`(H W, 3)` float64 (world frame, centre rays), ``specular`` :math:`(H, W)`
-    specular radiance at the centre rays.
+    Returns a dict with ``image`` :math:`(3, H, W)` radiance clipped to [0, 1], ``depth`` :math:`(H, W)`
+    (z in this camera's frame, inf = miss), ``ids`` :math:`(H, W)` long, ``points`` and ``normals``
+    :math:`(H W, 3)` (world frame, centre rays), ``specular`` :math:`(H, W)` specular radiance at the centre
+    rays, ``edges`` :math:`(H, W)` bool (the supersampled pixels). ``geometry`` is accepted for backward
+    compatibility (the geometry is always computed).
     """
     s = int(supersample)
     if s < 1:
         raise ValueError(f"supersample: expected an integer >= 1, got {supersample}")
     w, h = camera.size
-    grid = camera.grid_rays(s, dtype)
-    t, ids, ranges = raycast_grid(scene, grid)
-    fields = surface_fields(scene, grid, t, ids, ranges)
-    rgb, _ = shade(scene, ids.reshape(-1), fields["points"], fields["normals"], fields["albedo"], camera.center,
-                   specular, extra_light_fn)
-    img = rgb.reshape(h * s, w * s, 3).permute(2, 0, 1)  # 3xH'xW'
-    if s > 1:
-        img = F.avg_pool2d(img[None], s)[0]
-    out = {"image": img.clamp(0.0, 1.0).contiguous()}
-    if geometry:
-        grid1 = camera.grid_rays(1, torch.float64)
-        t1, ids1, ranges1 = raycast_grid(scene, grid1)
-        f1 = surface_fields(scene, grid1, t1, ids1, ranges1, with_albedo=False)
-        albedo = torch.ones_like(f1["points"])
-        _, spec = shade(scene, ids1.reshape(-1), f1["points"], f1["normals"], albedo, camera.center, specular)
-        out.update(depth=t1, ids=ids1, points=f1["points"], normals=f1["normals"], specular=spec.reshape(h, w))
-    return out
+    grid = camera.grid_rays(1, dtype)
+    t, ids, _ = raycast_grid(scene, grid)
+    srt = sorted_surface(scene, grid, t, ids)
+    order = srt["order"]
+    rgb, spec = shade(scene, srt["ids"], srt["points"], srt["normals"], srt["albedo"], camera.center,
+                      specular, extra_light_fn)
+    rgb, spec = unsort(rgb, order), unsort(spec, order)
+    points, normals = unsort(srt["points"], order), unsort(srt["normals"], order)
+    edges = edge_pixels(ids) if s > 1 else torch.zeros_like(ids, dtype=torch.bool)
+    ey, ex = torch.nonzero(edges, as_tuple=True)
+    if ey.numel():
+        offsets = (torch.arange(s, dtype=dtype) + 0.5) / s - 0.5
+        oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
+        sx = (ex.to(dtype)[:, None] + ox.reshape(1, -1)).reshape(-1)  # (M*s*s,)
+        sy = (ey.to(dtype)[:, None] + oy.reshape(1, -1)).reshape(-1)
+        dirs = _pixel_rays(camera, sx, sy)
+        hits = raycast(scene, camera.center, dirs, torch.stack([sx, sy], -1), camera)
+        albedo = albedo_of_hits(scene, hits, dirs, 1.0 / (s * float(camera.K[0, 0])))
+        sub, _ = shade(scene, hits.ids, hits.points, hits.normals, albedo, camera.center, specular,
+                       extra_light_fn)
+        rgb[ey * w + ex] = sub.reshape(-1, s * s, 3).mean(1)
+    img = rgb.reshape(h, w, 3).permute(2, 0, 1)  # 3xHxW
+    return {"image": img.clamp(0.0, 1.0).contiguous(), "depth": t, "ids": ids, "points": points,
+            "normals": normals, "specular": spec.reshape(h, w), "edges": edges}
