@@ -86,6 +86,7 @@ def test_bad_input_one_line_nonzero(args, needle, capsys):
     assert lines[0].startswith("eval.py: error:") and needle in lines[0]
 
 
+@pytest.mark.slow
 def test_script_wrapper_reports_one_line():
     r = run_script("--methods", "nonsense", "--data", "synthetic:1")
     assert r.returncode == 2 and "Traceback" not in r.stderr

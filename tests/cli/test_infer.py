@@ -157,13 +157,15 @@ def test_uncalibrated_rectifies_a_rotated_pair(shared_data, tmp_path, capsys):
     from stereonet.io import read_disparity
 
     scene = shared_data / "middlebury2003" / "cones"
-    right = cv2.imread(str(scene / "im6.png"))
+    half = lambda img: cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)  # faster test
+    left, right = half(cv2.imread(str(scene / "im2.png"))), half(cv2.imread(str(scene / "im6.png")))
     h, w = right.shape[:2]
     M = cv2.getRotationMatrix2D((w / 2, h / 2), 2.0, 1.0)
-    M[1, 2] += 6
+    M[1, 2] += 4
+    cv2.imwrite(str(tmp_path / "left.png"), left)
     cv2.imwrite(str(tmp_path / "right.png"), cv2.warpAffine(right, M, (w, h), borderMode=cv2.BORDER_REFLECT))
     out = tmp_path / "out"
-    code, err = run_main(capsys, scene / "im2.png", tmp_path / "right.png", "-o", out, "--uncalibrated",
+    code, err = run_main(capsys, tmp_path / "left.png", tmp_path / "right.png", "-o", out, "--uncalibrated",
                          "--method", "opencv-sgbm")
     assert code == 0, err
     names = {p.name for p in out.iterdir()}
@@ -171,7 +173,7 @@ def test_uncalibrated_rectifies_a_rotated_pair(shared_data, tmp_path, capsys):
     assert not {"depth.pfm", "cloud.ply"} & names  # no metric scale without calibration
     info = json.loads((out / "info.json").read_text())
     assert info["epipolar_median_row_error_px"] < 1.0
-    assert 32 <= info["max_disp"] <= 128
+    assert 16 <= info["max_disp"] <= 64
     disp, valid = read_disparity(out / "disparity.pfm")
     assert valid.mean() > 0.5
 
