@@ -63,7 +63,10 @@ def weights_available(name: str) -> bool:
         return False
     probe = getattr(registered, "weights_available", None)
     if probe is not None:
-        return bool(probe(name))
+        try:
+            return bool(probe(name))
+        except (KeyError, ValueError):  # a name the learned family does not know: look for the file
+            pass
     return default_weights_path(name.split("-")[0]).is_file()
 
 

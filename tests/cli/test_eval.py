@@ -161,3 +161,16 @@ def test_json_rows_written(tmp_path, monkeypatch):
     assert ev.main(["--methods", "opencv-bm,opencv-sgbm", "--data", "fake", "--json", str(out), "--no-progress"]) == 0
     rows = json.loads(out.read_text())
     assert len(rows) == 2 and all(ROW_KEYS <= set(r) for r in rows)
+
+
+def test_all_skips_methods_without_weights(monkeypatch, tmp_path):
+    from stereonet import matchers
+
+    monkeypatch.setitem(matchers._REGISTRY, "weightless-test",
+                        matchers.MatcherSpec("weightless-test", lambda *a: None, "learned", "x", needs_weights=True))
+    monkeypatch.setenv("STEREONET_WEIGHTS_DIR", str(tmp_path / "no-weights"))
+    skipped: list[str] = []
+    assert "weightless-test" not in ev.parse_methods("all", skipped)
+    assert "weightless-test" in skipped
+    with pytest.raises(FileNotFoundError, match="weights"):
+        ev.parse_methods("opencv-bm,weightless-test")

@@ -202,3 +202,33 @@ def test_default_method_is_registered():
     name = infer.default_method()
     assert name in matchers.available()
     assert not matchers.spec(name).needs_weights or infer.weights_available(name)
+
+
+def test_missing_weights_is_one_line(pair_files, tmp_path, capsys, monkeypatch):
+    from stereonet import matchers
+
+    def learned(left, right, max_disp, checkpoint=None):
+        raise AssertionError("must not run without weights")
+
+    monkeypatch.setitem(matchers._REGISTRY, "weightless-test",
+                        matchers.MatcherSpec("weightless-test", learned, "learned", "x", needs_weights=True))
+    monkeypatch.setenv("STEREONET_WEIGHTS_DIR", str(tmp_path / "no-weights"))
+    out = tmp_path / "out"
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "weightless-test")
+    assert code == 2 and "weights" in one_line_error(err)
+    assert not out.exists()
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "weightless-test", "--checkpoint",
+                         tmp_path / "absent.ckpt")
+    assert code == 2 and "--checkpoint" in one_line_error(err)
+
+
+def test_batch_of_globs(tmp_path, capsys):
+    for i in range(2):
+        left, right = textured_pair(seed=i)
+        cv2.imwrite(str(tmp_path / f"scene{i}_L.png"), left)
+        cv2.imwrite(str(tmp_path / f"scene{i}_R.png"), right)
+    out = tmp_path / "out"
+    code, err = run_main(capsys, tmp_path / "*_L.png", tmp_path / "*_R.png", "-o", out, "--method", "opencv-bm",
+                         "--max-disp", "16")
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["scene0_L", "scene1_L"]
