@@ -14,7 +14,6 @@ import math
 from typing import NamedTuple
 
 import torch
-from kornia.geometry.homography import find_homography_dlt
 
 from stereonet.geometry.camera import DegenerateGeometryError, check_intrinsics, check_points
 
@@ -301,26 +300,29 @@ def pose_from_essential(E: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor,
     return PoseEstimate(R4[best], t4[best], counts)
 
 
-def homography_explains_matches(pts1: torch.Tensor, pts2: torch.Tensor, threshold: float = 1.0,
-                                fraction: float = 0.9) -> bool:
-    """True when one homography maps ``fraction`` of ``pts1`` onto ``pts2`` within ``threshold`` px: a planar
-    scene or a pure rotation, where F is not determined by the matches. pts :math:`(N, 2)`, N >= 4."""
-    H = find_homography_dlt(pts1.double()[None], pts2.double()[None], solver="svd")[0]
-    if not bool(torch.isfinite(H).all()):
+def homography_explains_matches(pts1: torch.Tensor, pts2: torch.Tensor, threshold: float = 3.0,
+                                min_off_plane: float = 0.05) -> bool:
+    """True when one homography (kornia's RANSAC, transfer error <= ``threshold`` px) explains all but a
+    fraction ``min_off_plane`` (and fewer than 8) of the matches :math:`(N, 2)`: a planar scene or a pure
+    rotation, where F is not determined. A dominant plane with some parallax off it is *not* degenerate."""
+    from kornia.geometry.ransac import RANSAC
+
+    n = pts1.shape[0]
+    H, mask = RANSAC("homography", inl_th=threshold, max_iter=5, seed=0)(pts1.double(), pts2.double())
+    if not bool(torch.isfinite(H).all()) or not bool(H.abs().sum() > 0):
         return False
-    mapped = _homogeneous(pts1.double()) @ H.T
-    w = mapped[:, 2:]
-    ok = w.abs() > 1e-12
-    err = torch.linalg.vector_norm(mapped[:, :2] / torch.where(ok, w, torch.ones_like(w)) - pts2.double(), dim=-1)
-    err = torch.where(ok[:, 0], err, torch.full_like(err, float("inf")))
-    return bool((err < threshold).double().mean() >= fraction)
+    off_plane = n - int(mask.sum())
+    return off_plane < 8 or off_plane < min_off_plane * n
 
 
 class FundamentalEstimate(NamedTuple):
-    """Robust F: the matrix :math:`(3, 3)` and the inlier mask :math:`(N,)` bool."""
+    """Robust F: the matrix :math:`(3, 3)`, the inlier mask :math:`(N,)` bool, and ``planar``: True when one
+    homography explains nearly all inliers (planar scene, pure rotation, or a dominant plane with too little
+    parallax off it), so F is weakly or not at all determined away from that plane."""
 
     F: torch.Tensor
     inliers: torch.Tensor
+    planar: bool = False
 
 
 def _sample_minimal_sets(num_points: int, count: int, generator: torch.Generator) -> torch.Tensor:
@@ -330,7 +332,7 @@ def _sample_minimal_sets(num_points: int, count: int, generator: torch.Generator
 
 def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ransac", threshold: float = 1.0,
                        confidence: float = 0.999, max_iterations: int = 5000, batch_size: int = 64,
-                       seed: int = 0, check_planar: bool = True) -> FundamentalEstimate:
+                       seed: int = 0, on_planar: str = "flag") -> FundamentalEstimate:
     """Robust F by RANSAC or LMedS over eight-point hypotheses, scored with the Sampson distance.
 
     Hypotheses are drawn ``batch_size`` at a time and solved and scored as one batched tensor computation.
@@ -344,8 +346,9 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
         method: ``"ransac"`` or ``"lmeds"``.
         threshold: RANSAC inlier threshold in px (Sampson distance).
         seed: the random sampling is a pure function of it.
-        check_planar: refuse (DegenerateGeometryError) when a homography explains the inliers (planar scene,
-            pure rotation), where F is not determined.
+        on_planar: what to do when one homography explains nearly all inliers (planar scene, pure rotation;
+            see :func:`homography_explains_matches`): ``"flag"`` sets ``planar=True`` in the result, ``"raise"``
+            raises DegenerateGeometryError, ``"ignore"`` skips the test.
 
     Returns:
         :class:`FundamentalEstimate` (F :math:`(3, 3)` in the input dtype, inliers :math:`(N,)` bool).
@@ -357,6 +360,8 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
                                       f"{tuple(pts1.shape)} and {tuple(pts2.shape)}")
     if method not in ("ransac", "lmeds"):
         raise ValueError(f"method: expected 'ransac' or 'lmeds', got {method!r}")
+    if on_planar not in ("flag", "raise", "ignore"):
+        raise ValueError(f"on_planar: expected 'flag', 'raise' or 'ignore', got {on_planar!r}")
     if not threshold > 0:
         raise ValueError(f"threshold: expected a positive number of pixels, got {threshold!r}")
     p1, p2 = pts1.detach().double(), pts2.detach().double()
@@ -403,11 +408,13 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
     if int(inliers.sum()) < 8:
         raise DegenerateGeometryError(f"pts1, pts2: only {int(inliers.sum())} of {n} matches fit one F "
                                       f"(need 8); too many outliers or threshold {threshold:.3g} px too small")
-    if check_planar and homography_explains_matches(p1[inliers], p2[inliers], threshold=max(threshold, 1.0)):
+    planar = on_planar != "ignore" and homography_explains_matches(p1[inliers], p2[inliers],
+                                                                   threshold=3 * max(threshold, 1.0))
+    if planar and on_planar == "raise":
         raise DegenerateGeometryError(
             "pts1, pts2: a single homography explains the matches (planar scene or pure rotation without "
-            "translation), so F is not determined; pass check_planar=False to get an arbitrary F anyway")
-    return FundamentalEstimate(best_F.to(pts1.dtype), inliers)
+            "translation), so F is not determined; pass on_planar='flag' to get an arbitrary F anyway")
+    return FundamentalEstimate(best_F.to(pts1.dtype), inliers, planar)
 
 
 def _ransac_iterations(inlier_ratio: float, confidence: float, sample_size: int = 8) -> int:

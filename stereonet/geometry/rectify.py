@@ -8,9 +8,10 @@ lenses are distorted). Pixel centres are at integer coordinates (OpenCV conventi
 
 from __future__ import annotations
 
+import logging
 import math
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import torch
 from kornia.geometry.transform import remap, warp_perspective
@@ -60,6 +61,8 @@ class Rectification:
             :math:`(N, 2)` x 2 in original pixels and their inlier mask (uncalibrated only).
         disparity_range: (1st, 99th percentile) of the inlier matches' disparity after rectification
             (uncalibrated), a hint for ``max_disp``.
+        notes: warnings about the result, e.g. that one homography explains nearly all matches (dominant plane,
+            pure rotation: F, hence the rectification, is weakly determined away from that plane).
     """
 
     left: torch.Tensor | None
@@ -78,6 +81,7 @@ class Rectification:
     matches: tuple[torch.Tensor, torch.Tensor] | None = None
     inliers: torch.Tensor | None = None
     disparity_range: tuple[float, float] | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 def apply_homography(H: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -114,7 +118,10 @@ def rectifying_rotation(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return torch.stack([r1, r2, r3])
 
 
-def _border_edges(width: int, height: int, per_edge: int = 32) -> list[torch.Tensor]:
+_PER_EDGE = 32
+
+
+def _border_edges(width: int, height: int, per_edge: int = _PER_EDGE) -> list[torch.Tensor]:
     """Pixel-centre samples of the four image edges (top, bottom, left, right), each (per_edge, 2) float64."""
     xs = torch.linspace(0, width - 1, per_edge, dtype=torch.float64)
     ys = torch.linspace(0, height - 1, per_edge, dtype=torch.float64)
@@ -267,7 +274,7 @@ def stereo_rectify(calib: Calibration, alpha: float = 1.0, output_size: tuple[in
     boxes = []
     for K, Rr, dist in ((K1, R1, calib.dist1), (K2, R2, calib.dist2)):
         G = K0 @ Rr @ torch.linalg.inv(K)
-        edges = [undistort_pixels(e, K, dist) for e in _border_edges(w, h)]
+        edges = list(undistort_pixels(torch.cat(_border_edges(w, h)), K, dist).split(_PER_EDGE))
         rays = [torch.cat([e, torch.ones_like(e[:, :1])], -1) @ G.T for e in edges]
         if any(bool((r[:, 2] <= 1e-9).any()) for r in rays):
             raise DegenerateGeometryError("calib: the rectifying rotation turns part of an image behind the camera "
@@ -454,8 +461,13 @@ def stereo_rectify_uncalibrated(pts1: torch.Tensor, pts2: torch.Tensor, image_si
         raise DegenerateGeometryError(f"pts1, pts2: {pts1.shape[0]} matches, need at least {min_matches} to "
                                       "estimate F robustly (try a larger ratio or more textured images)")
     p1, p2 = pts1.double(), pts2.double()
+    notes = []
     if F is None:
-        F, inliers = fundamental_robust(p1, p2, threshold=threshold, seed=seed)
+        F, inliers, planar = fundamental_robust(p1, p2, threshold=threshold, seed=seed)
+        if planar:
+            notes.append("one homography explains nearly all matches (dominant plane or pure rotation): F and the "
+                         "rectification are weakly determined away from that plane")
+            logging.getLogger(__name__).warning("rectify_uncalibrated: %s", notes[-1])
     else:
         inliers = sampson_distance(p1, p2, F.double()) < max(threshold, 1e-9) ** 2
     if int(inliers.sum()) < min_matches:
@@ -472,7 +484,7 @@ def stereo_rectify_uncalibrated(pts1: torch.Tensor, pts2: torch.Tensor, image_si
     disp = apply_homography(H1, p1[inliers])[:, 0] - apply_homography(H2, p2[inliers])[:, 0]
     return Rectification(None, None, H1, H2, None, None, None, None, None, F=F, matches=(pts1, pts2),
                          inliers=inliers, disparity_range=(float(torch.quantile(disp, 0.01)),
-                                                           float(torch.quantile(disp, 0.99))))
+                                                           float(torch.quantile(disp, 0.99))), notes=notes)
 
 
 def rectify_uncalibrated(left: torch.Tensor, right: torch.Tensor, pts1: torch.Tensor | None = None,

@@ -233,15 +233,19 @@ def test_planar_scene_and_pure_rotation_are_refused():
     p2 = project_points(X, calib.K2, calib.R, calib.t)
     with pytest.raises(DegenerateGeometryError):
         fundamental_8point(p1, p2)
+    noisy = p1 + 0.1 * torch.randn(p1.shape, generator=g, dtype=torch.float64)
     with pytest.raises(DegenerateGeometryError, match="homography"):
-        fundamental_robust(p1 + 0.1 * torch.randn(p1.shape, generator=g, dtype=torch.float64), p2)
+        fundamental_robust(noisy, p2, on_planar="raise")
+    assert fundamental_robust(noisy, p2).planar  # the default flags it
+    _, q1, q2 = random_correspondences(calib, 40, 6)
+    assert not fundamental_robust(q1, q2).planar
     # pure rotation: the rotated views of any scene are related by K2 R K1^-1
     X = torch.cat([xy, 3 + 2 * torch.rand(40, 1, generator=g, dtype=torch.float64)], -1)
     R = random_rotation(5, g)
     q1 = project_points(X, calib.K1)
     q2 = project_points(X, calib.K1, R, torch.zeros(3, dtype=torch.float64))
     with pytest.raises(DegenerateGeometryError, match="homography"):
-        fundamental_robust(q1, q2)
+        fundamental_robust(q1, q2, on_planar="raise")
     with pytest.raises(DegenerateGeometryError, match="pure rotation"):
         project_to_essential(essential_from_pose(R, torch.zeros(3, dtype=torch.float64)))
 

@@ -48,11 +48,11 @@ def _row_errors(rect, p1, p2) -> tuple[torch.Tensor, torch.Tensor]:
     return (a[:, 1] - b[:, 1]).abs(), a[:, 0] - b[:, 0]
 
 
-def test_calibrated_rectification_aligns_rows_on_50_rigs(one_thread):
-    """|dy| of exact correspondences after rectification, ours vs cv2.stereoRectify on the same 50 rigs (half of
-    them with lens distortion)."""
+def test_calibrated_rectification_aligns_rows_on_random_rigs(one_thread):
+    """|dy| of exact correspondences after rectification, ours vs cv2.stereoRectify on the same 16 rigs (rotations
+    up to 8 degrees, half of them with lens distortion); the 50-rig data_gen run is in test_data_gen_rigs.py."""
     stats = {"kornia": [], "opencv": []}
-    for seed in range(50):
+    for seed in range(16):
         calib = random_rig(seed, image_size=SIZE, distortion=seed % 2 == 1)
         X, p1, p2 = random_correspondences(calib, 100, seed)
         for method in stats:
@@ -221,11 +221,12 @@ def _noisy_matches(calib: Calibration, seed: int, count: int = 200, sigma: float
     return p1[k:], p2[k:], n1, n2
 
 
-def test_uncalibrated_rectification_from_noisy_matches_on_50_rigs(one_thread):
+def test_uncalibrated_rectification_from_noisy_matches_on_random_rigs(one_thread):
     """Hartley rectification from F estimated on noisy matches (sigma 0.5 px, 20 % outliers); OpenCV's
-    stereoRectifyUncalibrated with the same F and inliers in the same run."""
+    stereoRectifyUncalibrated with the same F and inliers in the same run (16 rigs here, 50 data_gen rigs in
+    test_data_gen_rigs.py)."""
     ours, theirs = [], []
-    for seed in range(50):
+    for seed in range(16):
         calib = random_rig(seed, image_size=SIZE)
         gt1, gt2, n1, n2 = _noisy_matches(calib, seed)
         rect = stereo_rectify_uncalibrated(n1, n2, SIZE, seed=seed)
