@@ -12,15 +12,6 @@ from stereonet.geometry import rectify_calibrated, rectify_points
 from stereonet.geometry.bench import rendered_benchmark, rig_benchmark, summarize
 
 
-@pytest.fixture
-def one_thread():
-    """Many tiny tensor ops (RANSAC batches, 3x3 solves) run faster on one thread than two busy ones."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _by_method(rows):
     return {s["method"]: s for s in summarize(rows)}
 

@@ -29,15 +29,6 @@ SIZE = (320, 240)  # (width, height) of the random rigs: keeps the image warps c
 SMALL = (160, 120)  # for the tests that warp images
 
 
-@pytest.fixture
-def one_thread():
-    """Many tiny tensor ops (RANSAC batches, 3x3 solves) run faster on one thread than two busy ones."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _blank(calib: Calibration, channels: int = 1) -> torch.Tensor:
     w, h = calib.image_size
     return torch.zeros(1, channels, h, w)
