@@ -382,7 +382,12 @@ def hartley_homographies(F: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor
     F = F.double()
     p1, p2 = pts1.double(), pts2.double()
     w, h = image_size
-    _, e2 = epipoles(F)
+    e1, e2 = epipoles(F)
+    for name, e in (("left", e1), ("right", e2)):
+        if float(e[2]) > 1e-12 and -0.5 <= float(e[0] / e[2]) <= w - 0.5 and -0.5 <= float(e[1] / e[2]) <= h - 0.5:
+            raise DegenerateGeometryError(
+                f"F: the epipole lies inside the {name} image (camera moving along its optical axis); no pair of "
+                "homographies can rectify it (polar rectification would be needed)")
     T = torch.tensor([[1.0, 0, -(w - 1) / 2], [0, 1.0, -(h - 1) / 2], [0, 0, 1.0]], dtype=torch.float64)
     e = T @ e2
     if float(e[2].abs()) > 1e-9 * float(torch.linalg.vector_norm(e[:2])):
@@ -474,6 +479,12 @@ def stereo_rectify_uncalibrated(pts1: torch.Tensor, pts2: torch.Tensor, image_si
         raise DegenerateGeometryError(f"pts1, pts2: only {int(inliers.sum())} inlier matches, need {min_matches}")
     F = F.double()
     H1, H2 = hartley_homographies(F, p1[inliers], p2[inliers], (w, h))
+    border = torch.cat(_border_edges(w, h))
+    for H in (H1, H2):
+        wgt = (torch.cat([border, torch.ones_like(border[:, :1])], -1) @ H.T)[:, 2]
+        if not bool((wgt > 0).all() or (wgt < 0).all()):
+            raise DegenerateGeometryError("F: the rectifying homography sends part of the image to infinity (the "
+                                          "epipole is too close to the image); cannot rectify with homographies")
     disp = apply_homography(H1, p1[inliers])[:, 0] - apply_homography(H2, p2[inliers])[:, 0]
     shift = -float(torch.quantile(disp, 0.01))  # move the right image so that ~all inlier disparities are >= 0
     H2 = torch.tensor([[1.0, 0, -shift], [0, 1.0, 0], [0, 0, 1.0]], dtype=torch.float64) @ H2

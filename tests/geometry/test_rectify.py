@@ -13,6 +13,7 @@ from stereonet.geometry import (
     DegenerateGeometryError,
     apply_homography,
     disparity_to_depth,
+    fundamental_from_pose,
     rectify_calibrated,
     rectify_from_file,
     rectify_points,
@@ -247,3 +248,9 @@ def test_uncalibrated_bad_input():
         rectify_uncalibrated(img, img, n1)
     with pytest.raises(DegenerateGeometryError, match="SIFT"):  # textureless images: no matches at all
         rectify_uncalibrated(img, img)
+    # forward motion: the epipole is inside the image
+    eye = torch.eye(3, dtype=torch.float64)
+    forward = Calibration(calib.K1, calib.K2, eye, torch.tensor([0.01, 0.0, -0.3]), image_size=SIZE)
+    _, q1, q2 = random_correspondences(forward, 40, 2)
+    with pytest.raises(DegenerateGeometryError, match="epipole lies inside"):
+        stereo_rectify_uncalibrated(q1, q2, SIZE, F=fundamental_from_pose(forward.K1, forward.K2, eye, forward.t))
