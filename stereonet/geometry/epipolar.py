@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import torch
 
+from stereonet.checks import StereoInputError
 from stereonet.geometry.camera import DegenerateGeometryError, check_intrinsics, check_points
 
 __all__ = [
@@ -133,8 +134,7 @@ def fundamental_8point(pts1: torch.Tensor, pts2: torch.Tensor) -> torch.Tensor:
     check_points(pts1, "pts1", 2, min_count=8)
     check_points(pts2, "pts2", 2, min_count=8)
     if pts1.shape != pts2.shape:
-        raise DegenerateGeometryError(f"pts2: expected the same shape as pts1 {tuple(pts1.shape)}, "
-                                      f"got {tuple(pts2.shape)}")
+        raise StereoInputError(f"pts2: expected the same shape as pts1 {tuple(pts1.shape)}, got {tuple(pts2.shape)}")
     F, margin = _eight_point_core(pts1.double(), pts2.double())
     if bool((margin < _RANK_TOL.get(pts1.dtype, 1e-5)).any()):
         raise DegenerateGeometryError(
@@ -302,9 +302,9 @@ def pose_from_essential(E: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor,
 
 def homography_explains_matches(pts1: torch.Tensor, pts2: torch.Tensor, threshold: float = 3.0,
                                 min_off_plane: float = 0.05) -> bool:
-    """True when one homography (kornia's RANSAC, transfer error <= ``threshold`` px) explains all but a
-    fraction ``min_off_plane`` (and fewer than 8) of the matches :math:`(N, 2)`: a planar scene or a pure
-    rotation, where F is not determined. A dominant plane with some parallax off it is *not* degenerate."""
+    """True when one homography (kornia's RANSAC, transfer error <= ``threshold`` px) explains the matches
+    :math:`(N, 2)` except fewer than 8 of them or fewer than a fraction ``min_off_plane``: a planar scene or a
+    pure rotation, where F is not determined. A dominant plane with enough parallax off it is not degenerate."""
     from kornia.geometry.ransac import RANSAC
 
     n = pts1.shape[0]
@@ -356,8 +356,8 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
     check_points(pts1, "pts1", 2, min_count=8)
     check_points(pts2, "pts2", 2, min_count=8)
     if pts1.dim() != 2 or pts1.shape != pts2.shape:
-        raise DegenerateGeometryError(f"pts1, pts2: expected two (N, 2) tensors of equal shape, got "
-                                      f"{tuple(pts1.shape)} and {tuple(pts2.shape)}")
+        raise StereoInputError(f"pts1, pts2: expected two (N, 2) tensors of equal shape, got "
+                               f"{tuple(pts1.shape)} and {tuple(pts2.shape)}")
     if method not in ("ransac", "lmeds"):
         raise ValueError(f"method: expected 'ransac' or 'lmeds', got {method!r}")
     if on_planar not in ("flag", "raise", "ignore"):
