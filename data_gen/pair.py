@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import cv2
@@ -18,6 +19,24 @@ from data_gen.scene import (
     sample_rig,
     sample_scene,
 )
+
+
+@contextlib.contextmanager
+def single_thread():
+    """Run torch single-threaded inside the block (restored after).
+
+    The renderer's tensors are small and many: with several intra-op threads on a busy machine the thread
+    synchronisation costs far more than it saves (measured 5-10x more CPU time at 2 threads).
+    """
+    before = torch.get_num_threads()
+    if before == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _check_int(value: object, name: str, minimum: int) -> int:
@@ -153,9 +172,19 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
         ``correspondence`` float32 :math:`(2, H, W)` (right-image pixel (x, y) of each left pixel);
         ``calib`` (:class:`stereonet.types.Calibration`, mm); ``name``; ``max_disp``; ``difficulty``;
         ``scene`` and ``rig`` (the objects used).
+
+    Runs torch single-threaded for its duration (see :func:`single_thread`); parallelize over pairs instead
+    (DataLoader workers).
     """
     seed, index, difficulty, height, width, supersample, max_disp = check_render_args(
         seed, index, difficulty, height, width, supersample, max_disp, baseline, num_objects)
+    with single_thread():
+        return _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp,
+                            baseline, distortion, noise, photometric, blur, specular)
+
+
+def _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp, baseline,
+                 distortion, noise, photometric, blur, specular) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
     rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)

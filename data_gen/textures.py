@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+import numba
 import numpy as np
 import torch
 
@@ -44,6 +45,23 @@ def _fractal(rng: np.random.Generator, size: int) -> np.ndarray:
     return np.clip((img - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
 
 
+@numba.njit(cache=True)
+def _paint_leaves(img, centres, radii, values, squares):  # pragma: no cover - compiled
+    """Paint leaves back to front on a periodic canvas (later leaves cover earlier ones)."""
+    size = img.shape[0]
+    for i in range(radii.shape[0]):
+        cy, cx, r = centres[i, 0], centres[i, 1], radii[i]
+        ri = int(np.ceil(r))
+        y0, x0 = int(cy) - ri, int(cx) - ri
+        for yy in range(y0, y0 + 2 * ri + 1):
+            dy = yy - cy + 0.5
+            for xx in range(x0, x0 + 2 * ri + 1):
+                dx = xx - cx + 0.5
+                inside = max(abs(dy), abs(dx)) <= r if squares else dy * dy + dx * dx <= r * r
+                if inside:
+                    img[yy % size, xx % size] = values[i]
+
+
 def _dead_leaves(rng: np.random.Generator, size: int, squares: bool) -> np.ndarray:
     """Periodic dead-leaves image: occluding discs (or squares) with power-law radii r^-3, painted back to front."""
     rmin, rmax = rng.uniform(1.0, 2.5), rng.uniform(25.0, 60.0)
@@ -53,22 +71,7 @@ def _dead_leaves(rng: np.random.Generator, size: int, squares: bool) -> np.ndarr
     centres = rng.random((n, 2)) * size
     values = rng.random(n)
     img = np.full((size, size), rng.random())
-    for (cy, cx), r, val in zip(centres, radii, values):
-        ri = int(math.ceil(r))
-        y0, x0 = int(cy) - ri, int(cx) - ri
-        dy = (np.arange(y0, y0 + 2 * ri + 1) - cy + 0.5)[:, None]
-        dx = (np.arange(x0, x0 + 2 * ri + 1) - cx + 0.5)[None, :]
-        inside = (np.maximum(np.abs(dy), np.abs(dx)) <= r) if squares else (dy * dy + dx * dx <= r * r)
-        for sy in (0, size, -size):  # paint the periodic copies that overlap the tile
-            ya, yb = max(y0 + sy, 0), min(y0 + sy + 2 * ri + 1, size)
-            if ya >= yb:
-                continue
-            for sx in (0, size, -size):
-                xa, xb = max(x0 + sx, 0), min(x0 + sx + 2 * ri + 1, size)
-                if xa >= xb:
-                    continue
-                m = inside[ya - y0 - sy:yb - y0 - sy, xa - x0 - sx:xb - x0 - sx]
-                img[ya:yb, xa:xb][m] = val
+    _paint_leaves(img, centres, radii, values, squares)
     return img
 
 

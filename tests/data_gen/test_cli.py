@@ -72,11 +72,19 @@ def test_cli_resumes_and_leaves_only_complete_pairs(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [pair_name(0, i, 0, True) for i in range(3)]
 
 
-def test_cli_bad_input_exits_with_a_message(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "data_gen", "--out", str(tmp_path), "--count", "1",
-                           "--difficulty", "9"], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "difficulty" in proc.stderr
+@pytest.mark.parametrize("args,param", [(["--difficulty", "9"], "difficulty"), (["--count", "0"], "count"),
+                                        (["--max-disp", "500"], "max_disp")])
+def test_cli_bad_input_exits_with_a_message(tmp_path, capsys, args, param):
+    with pytest.raises(SystemExit) as exc:
+        main(["--out", str(tmp_path), "--count", "1", "--no-progress", *args])
+    assert exc.value.code == 2 and param in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_module_entry_point_runs():
+    proc = subprocess.run([sys.executable, "-m", "data_gen", "--help"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "--unrectified" in proc.stdout
 
 
 @pytest.mark.slow
