@@ -70,7 +70,6 @@ def _expansion_move(cost: np.ndarray, labels: np.ndarray, alpha: int, s_right: n
         e10 = s * to_alpha[trail]  # C = V(α, f_q)
         alpha_cost[lead] += e10 - e00
         alpha_cost[trail] -= e10
-        keep_cost[lead] += e00  # the constant A, kept so that the cut value is the energy
         capacity = np.zeros((h, w))
         capacity[lead] = np.maximum(e01 + e10 - e00, 0.0)
         graph.add_grid_edges(nodes, weights=capacity, structure=structure, symmetric=False)

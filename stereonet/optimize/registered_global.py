@@ -83,11 +83,15 @@ def dp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
     return StereoOutput(disp, valid, cost_volume=volume, extras=extras)
 
 
-def _mrf_weights(left: torch.Tensor, contrast_threshold: float, contrast_factor: float
-                 ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+def _mrf_problem(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
+                 cost_options: dict | None, contrast_threshold: float, contrast_factor: float
+                 ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+    """Checked inputs -> (cost volume, weights_right, weights_down) of the MRF shared by ``bp`` and ``graphcut``."""
+    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
     if contrast_factor == 1.0:
-        return None, None
-    return contrast_edge_weights(left, contrast_threshold, contrast_factor)
+        return volume, None, None
+    return (volume, *contrast_edge_weights(left, contrast_threshold, contrast_factor))
 
 
 @register("bp", kind="classical",
@@ -103,9 +107,8 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
     The smoothness weight is multiplied by ``contrast_factor`` across edges whose colour difference is below
     ``contrast_threshold`` (see :func:`stereonet.optimize._global_mrf.contrast_edge_weights`).
     """
-    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
-    volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
-    wr, wd = _mrf_weights(left, contrast_threshold, contrast_factor)
+    volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
+                                  contrast_factor)
     res = belief_propagation(volume, smoothness, truncation, iterations, levels, wr, wd)
     disp = _refine(res.beliefs, res.disparity, subpixel)
     valid = torch.ones_like(disp, dtype=torch.bool)
@@ -123,9 +126,8 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
 
     ``cycles`` passes over the ``max_disp + 1`` labels, each one max-flow on an ``H·W``-node grid graph.
     """
-    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
-    volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
-    wr, wd = _mrf_weights(left, contrast_threshold, contrast_factor)
+    volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
+                                  contrast_factor)
     res = alpha_expansion(volume, smoothness, truncation, cycles, None, wr, wd)
     disp = _refine(volume, res.disparity, subpixel)
     valid = torch.ones_like(disp, dtype=torch.bool)

@@ -78,3 +78,22 @@ def test_bad_inputs():
         alpha_expansion(cost, -0.5)
     with pytest.raises(TypeError, match="cost"):
         alpha_expansion(cost.int(), 1.0)
+
+
+def test_each_expansion_move_is_optimal():
+    """The min cut finds the best of all 2^N ways to switch pixels to α (brute force on a 2x3 grid)."""
+    import numpy as np
+
+    from stereonet.optimize.graphcut import _energy, _expansion_move
+
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        cost = rng.random((5, 2, 3)) * 3
+        labels = rng.integers(0, 5, (2, 3))
+        s_right, s_down = rng.random((2, 3)), rng.random((2, 3))
+        alpha = int(rng.integers(0, 5))
+        move = _expansion_move(cost, labels, alpha, s_right, s_down, 2.0)
+        assert np.all((move == labels) | (move == alpha))
+        best = min(_energy(cost, np.where(np.array(x).reshape(2, 3) == 1, alpha, labels), s_right, s_down, 2.0)
+                   for x in itertools.product((0, 1), repeat=6))
+        assert _energy(cost, move, s_right, s_down, 2.0) <= best + 1e-9
