@@ -363,18 +363,23 @@ def rectify_points(points: torch.Tensor, rect: Rectification, view: str = "left"
     return apply_homography(H, points)
 
 
-def hartley_homographies(F: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor,
-                         image_size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+def hartley_homographies(F: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor, image_size: tuple[int, int],
+                         match: str = "shape") -> tuple[torch.Tensor, torch.Tensor]:
     """Rectifying homographies from F alone (Hartley & Zisserman, Alg. 11.12).
 
     ``H2 = G R T`` sends the right epipole to infinity along x (T: image centre to the origin, R: epipole onto
     the x axis by the smaller rotation, G: ``[[1,0,0],[0,1,0],[-1/f,0,1]]``); ``H1 = H_A H2 M`` with
-    ``M = [e2]_x F + e2 (1,1,1)`` (so ``F ~ H2^T [i]_x H1``) and the shear/scale ``H_A`` that minimises the
-    x-distance of the matches. Both are then flipped together if needed so that rows point down and images are
-    not mirrored.
+    ``M = [e2]_x F + e2 (1,1,1)`` (so ``F ~ H2^T [i]_x H1``) and a row-preserving ``H_A = [[a, b, c], [0, 1, 0],
+    [0, 0, 1]]``: with ``match="disparity"`` Hartley's least-squares choice minimising the x-distance of the
+    matches (which shears the left image wherever the disparity varies with y, e.g. a road); with
+    ``match="shape"`` (default) ``a, b`` give the left warp the right warp's local shape (Jacobian) at the image
+    centre and ``c`` centres the matches' disparities. ``H_A`` never changes rows, so row alignment is the same
+    either way. Both homographies are then flipped together if needed so that rows point down and images are not
+    mirrored.
 
     Args:
         F: :math:`(3, 3)`; pts1, pts2: inlier matches :math:`(N, 2)`; image_size: ``(width, height)``.
+        match: ``"shape"`` or ``"disparity"``, the choice of ``H_A`` above.
 
     Returns:
         (H1, H2) float64 :math:`(3, 3)` (before fitting to an output frame).
@@ -414,8 +419,18 @@ def hartley_homographies(F: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor
     M = _cross(e2n) @ F + torch.outer(e2n, torch.ones(3, dtype=torch.float64))
     H0 = H2 @ M
     x1, x2 = apply_homography(H0, p1), apply_homography(H2, p2)
-    A = torch.cat([x1, torch.ones_like(x1[:, :1])], 1)  # Nx3
-    abc = torch.linalg.lstsq(A, x2[:, :1]).solution[:, 0]
+    centre = torch.tensor([(w - 1) / 2, (h - 1) / 2], dtype=torch.float64)
+    J0, J2 = _jacobian(H0, centre), _jacobian(H2, centre)
+    if match == "shape" and abs(float(torch.linalg.det(J0))) > 1e-12 * float(J0.abs().max()) ** 2:
+        # first row of H_A's linear part so that H1 = H_A H0 has H2's local shape at the image centre
+        ab = torch.linalg.solve(J0.T, J2[0])
+        c = float((x2[:, 0] - ab[0] * x1[:, 0] - ab[1] * x1[:, 1]).median())
+        abc = torch.stack([ab[0], ab[1], torch.tensor(c, dtype=torch.float64)])
+    elif match in ("shape", "disparity"):  # Hartley's least-squares: minimise sum (a x1 + b y1 + c - x2)^2
+        A = torch.cat([x1, torch.ones_like(x1[:, :1])], 1)  # Nx3
+        abc = torch.linalg.lstsq(A, x2[:, :1]).solution[:, 0]
+    else:
+        raise ValueError(f"match: expected 'shape' or 'disparity', got {match!r}")
     HA = torch.tensor([[float(abc[0]), float(abc[1]), float(abc[2])], [0, 1.0, 0], [0, 0, 1.0]], dtype=torch.float64)
     H1 = HA @ H0
     # Orientation: rows down (y axis not inverted) and no mirror, judged at the right image centre.

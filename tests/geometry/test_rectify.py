@@ -14,6 +14,7 @@ from stereonet.geometry import (
     apply_homography,
     disparity_to_depth,
     fundamental_from_pose,
+    hartley_homographies,
     rectify_calibrated,
     rectify_from_file,
     rectify_points,
@@ -254,3 +255,22 @@ def test_uncalibrated_bad_input():
     _, q1, q2 = random_correspondences(forward, 40, 2)
     with pytest.raises(DegenerateGeometryError, match="epipole lies inside"):
         stereo_rectify_uncalibrated(q1, q2, SIZE, F=fundamental_from_pose(forward.K1, forward.K2, eye, forward.t))
+
+
+def test_hartley_shape_matching_keeps_rows_and_local_shape():
+    """H_A never changes rows, so both choices align rows equally; "shape" gives the left warp the right warp's
+    x-derivatives at the image centre (no added shear), "disparity" is Hartley's least-squares choice."""
+    calib = random_rig(13, image_size=SIZE)
+    _, p1, p2 = random_correspondences(calib, 150, 13)
+    F = fundamental_from_pose(calib.K1, calib.K2, calib.R, calib.t)
+    H1s, H2s = hartley_homographies(F, p1, p2, SIZE, match="shape")
+    H1d, H2d = hartley_homographies(F, p1, p2, SIZE, match="disparity")
+    assert torch.allclose(H2s, H2d)
+    for H1 in (H1s, H1d):
+        assert float((apply_homography(H1, p1)[:, 1] - apply_homography(H2s, p2)[:, 1]).abs().max()) < 1e-6
+    centre = torch.tensor([[(SIZE[0] - 1) / 2, (SIZE[1] - 1) / 2]], dtype=torch.float64)
+    J1 = torch.autograd.functional.jacobian(lambda q: apply_homography(H1s, q), centre)[0, :, 0]
+    J2 = torch.autograd.functional.jacobian(lambda q: apply_homography(H2s, q), centre)[0, :, 0]
+    assert torch.allclose(J1[0], J2[0], atol=1e-9)  # the x row; the y row is fixed by F
+    with pytest.raises(ValueError, match="match"):
+        hartley_homographies(F, p1, p2, SIZE, match="bogus")
