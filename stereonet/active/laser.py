@@ -12,6 +12,7 @@ Pipeline (:func:`laser_scan`):
    a peak at the border or a second comparable peak (ambiguous) are invalid.
 4. :func:`~stereonet.active.triangulate.ray_plane_depth` — ray ∩ plane; grazing rays are invalid and a
    sheet that contains the camera centre (parallel to every camera ray) gives no depth.
+   :func:`reject_stripe_breaks` drops stripe points where the stripe is cut by an occluding edge.
 5. The stripe points of all angles are written into a range image (nearest pixel, the sample closest to the
    pixel centre wins).
 """
@@ -69,12 +70,14 @@ class StripeImages:
 
 
 def render_stripe_images(scene: Scene, camera: PinholeCamera, origin: Sequence[float], normals: torch.Tensor,
-                         offsets: torch.Tensor, power: float = 1.5, sigma_deg: float = 0.12,
+                         offsets: torch.Tensor, power: float = 1.5, sigma_deg: float | None = None,
                          ambient: float = 0.15, noise_std: float = 0.005, seed: int = 0) -> StripeImages:
     """Render the camera's view of each laser sheet (normals :math:`(A, 3)`, offsets :math:`(A,)`, world frame).
 
     The camera rays and the shadow test toward the laser do not depend on the sheet angle, so they are cast
-    once; each sheet only changes the Gaussian profile across it (``sigma_deg`` = angular half-thickness).
+    once; each sheet only changes the Gaussian profile across it (``sigma_deg`` = angular half-thickness as
+    seen from the laser; default 0.8 of the camera's pixel angle, so the stripe spans ~2-3 pixels like a
+    laser line focused for its camera — a much thinner line would fall between pixel centres).
     """
     src = torch.as_tensor(origin, dtype=torch.float64)
     o, d = camera.rays(camera.pixel_grid(1)[:, :, 0])
@@ -90,7 +93,7 @@ def render_stripe_images(scene: Scene, camera: PinholeCamera, origin: Sequence[f
     def sensor(x: torch.Tensor) -> torch.Tensor:
         return (x + noise_std * torch.randn(x.shape, generator=g, dtype=x.dtype)).clamp(0, 1).float()
 
-    sigma = math.radians(sigma_deg)
+    sigma = 0.8 / float(camera.K[0, 0]) if sigma_deg is None else math.radians(sigma_deg)
     on = []
     for n, c in zip(normals.to(torch.float64), offsets.to(torch.float64)):
         ang = ((hits.points @ n) - c) / dist  # sine of the angle between the sheet and the laser->point ray
@@ -102,7 +105,7 @@ def render_stripe_images(scene: Scene, camera: PinholeCamera, origin: Sequence[f
 
 def stripe_peaks(image: torch.Tensor, min_peak: float = 0.05, saturation: float = 0.99,
                  background: torch.Tensor | None = None, exclusion: int = 4,
-                 ambiguity_ratio: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
+                 ambiguity_ratio: float = 0.5, min_side_ratio: float = 0.03) -> tuple[torch.Tensor, torch.Tensor]:
     """Sub-pixel column of the laser stripe on every scanline.
 
     Args:
@@ -112,6 +115,8 @@ def stripe_peaks(image: torch.Tensor, min_peak: float = 0.05, saturation: float 
         background: optional laser-off image :math:`(B or 1, 1, H, W)` subtracted first.
         exclusion: half-width (px) around the peak ignored when looking for a competing second peak.
         ambiguity_ratio: a second peak above this fraction of the first makes the row ambiguous -> invalid.
+        min_side_ratio: both neighbours of the peak pixel must carry at least this fraction of its signal;
+            a stripe cut off by an occluding edge or a shadow has one dark side and a biased centre -> invalid.
 
     Returns:
         columns :math:`(B, 1, H)` float (sub-pixel, pixel centres at integers; 0 where invalid) and
@@ -141,7 +146,7 @@ def stripe_peaks(image: torch.Tensor, min_peak: float = 0.05, saturation: float 
     far = (cols - col[..., None]).abs() > exclusion
     second = torch.where(far, signal, torch.full_like(signal, -math.inf)).max(dim=-1).values
     valid = ((peak >= min_peak) & (raw_peak < saturation) & inner & (delta.abs() <= 0.5)
-             & (second < ambiguity_ratio * peak))
+             & (second < ambiguity_ratio * peak) & (torch.minimum(s_m, s_p) >= min_side_ratio * peak))
     columns = torch.where(valid, col.to(image.dtype) + delta, torch.zeros_like(peak))
     return columns, valid
 
@@ -151,7 +156,8 @@ class LaserScan:
     """Result of :func:`laser_scan`.
 
     ``range_image`` :math:`(H, W)` depth (0 where invalid), ``valid`` :math:`(H, W)`; ``points`` :math:`(N, 3)`
-    camera-frame stripe points; ``uv`` :math:`(N, 2)` their sub-pixel image positions; ``gt_depth`` :math:`(N,)`
+    camera-frame stripe points; ``uv`` :math:`(N, 2)` their sub-pixel image positions; ``sheet`` :math:`(N,)` the
+    index of the laser sheet (``normals[sheet]``, ``offsets[sheet]``, world frame); ``gt_depth`` :math:`(N,)`
     the renderer's depth along the same sub-pixel rays; ``depth_map_gt`` :math:`(H, W)` the GT depth map.
     """
 
@@ -159,6 +165,9 @@ class LaserScan:
     valid: torch.Tensor
     points: torch.Tensor
     uv: torch.Tensor
+    sheet: torch.Tensor
+    normals: torch.Tensor
+    offsets: torch.Tensor
     gt_depth: torch.Tensor
     depth_map_gt: torch.Tensor
     stripes: StripeImages
@@ -177,7 +186,7 @@ class LaserScan:
 
 def triangulate_stripes(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeCamera,
                         normals_world: torch.Tensor, offsets_world: torch.Tensor,
-                        min_angle_deg: float = 2.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                        min_angle_deg: float = 0.5) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Triangulate stripe columns :math:`(A, 1, H)` of ``A`` laser sheets (world planes :math:`(A, 3)`, :math:`(A,)`).
 
     Returns camera-frame points :math:`(A, H, 3)`, their pixel coordinates :math:`(A, H, 2)` and valid
@@ -198,14 +207,39 @@ def triangulate_stripes(columns: torch.Tensor, valid: torch.Tensor, camera: Pinh
     return pts, uv, ok & valid[:, 0]
 
 
+def reject_stripe_breaks(depth: torch.Tensor, valid: torch.Tensor, max_relative_jump: float = 0.02) -> torch.Tensor:
+    """Keep a stripe point only where the measured surface continues smoothly around it.
+
+    Where a stripe crosses an occluding edge it is cut off or merges with the stripe on the surface behind,
+    and the sub-pixel peak of that profile lies on neither surface. Inverse depth varies smoothly (affinely
+    on a plane) both along one sheet's stripe (scanline ``v``) and across neighbouring sheets on one
+    scanline (sheet ``a``), so its second difference along either axis must stay below
+    ``max_relative_jump / z``. Along a stripe, points whose neighbour is missing (segment ends next to
+    shadows and edges) are dropped too; across sheets they are checked only when both neighbours exist.
+    ``depth``/``valid``: :math:`(A, H)` per sheet and scanline. Returns the new valid mask.
+    """
+    inv = torch.where(valid, 1.0 / torch.where(valid, depth, torch.ones_like(depth)), torch.zeros_like(depth))
+    keep = valid.clone()
+    for x, ok, k, strict in ((inv, valid, keep, True), (inv.T, valid.T, keep.T, False)):  # rows, then sheets
+        both = torch.zeros_like(ok)
+        both[:, 1:-1] = ok[:, :-2] & ok[:, 2:]
+        second = torch.zeros_like(x)
+        second[:, 1:-1] = (x[:, :-2] - 2 * x[:, 1:-1] + x[:, 2:]).abs()
+        smooth = second <= max_relative_jump * x
+        k &= (both & smooth) if strict else (~both | smooth)  # k is a view of keep: updated in place
+    return keep
+
+
 def laser_scan(scene: Scene, camera: PinholeCamera, origin: Sequence[float], angles_deg: Sequence[float],
                axis: Sequence[float] = (0.0, 1.0, 0.0), forward: Sequence[float] = (0.0, 0.0, 1.0),
-               min_angle_deg: float = 2.0, seed: int = 0, **render_options) -> LaserScan:
+               min_angle_deg: float = 0.5, seed: int = 0, **render_options) -> LaserScan:
     """Sweep a laser sheet over ``scene`` and build ``camera``'s range image (see module doc)."""
     normals, offsets = sweep_planes(origin, angles_deg, axis, forward)
     stripes = render_stripe_images(scene, camera, origin, normals, offsets, seed=seed, **render_options)
     cols, ok = stripe_peaks(stripes.on, background=stripes.off)
     pts, uv, ok = triangulate_stripes(cols, ok, camera, normals, offsets, min_angle_deg)
+    ok = reject_stripe_breaks(pts[..., 2], ok)
+    sheet = torch.arange(ok.shape[0])[:, None].expand_as(ok)[ok]
     pts, uv = pts[ok], uv[ok]  # Nx3, Nx2
     # GT along the same sub-pixel rays (exact evaluation of the triangulation)
     o, d = camera.rays(uv)
@@ -223,4 +257,4 @@ def laser_scan(scene: Scene, camera: PinholeCamera, origin: Sequence[float], ang
         win = off[inside] == best[idx]  # per pixel, the stripe sample closest to the pixel centre
         range_image.view(-1)[idx[win]] = pts[inside][win, 2]
         valid.view(-1)[idx[win]] = True
-    return LaserScan(range_image, valid, pts, uv, gt_depth, stripes.depth, stripes)
+    return LaserScan(range_image, valid, pts, uv, sheet, normals, offsets, gt_depth, stripes.depth, stripes)

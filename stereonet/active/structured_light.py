@@ -267,7 +267,7 @@ def to_grey(images: torch.Tensor) -> torch.Tensor:
 
 
 def projector_depth(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeCamera, projector: PinholeCamera,
-                    min_angle_deg: float = 2.0) -> tuple[torch.Tensor, torch.Tensor]:
+                    min_angle_deg: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
     """Depth of every camera pixel from its decoded projector column (the projector as the second camera).
 
     Args:
@@ -296,24 +296,30 @@ def projector_depth(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeC
 @dataclass
 class CodedScan:
     """Camera + projector scan: ``depth``/``valid`` :math:`(1, 1, H, W)`, decoded ``columns``, the captures,
-    and the GT ``view`` of the camera."""
+    the GT ``view`` of the camera, the GT projector column of each pixel's surface point ``gt_columns`` and
+    ``column_tolerance``: the decoding error (projector px) beyond which a column is a wrong code, not
+    quantisation (half a stripe + 1 px for Gray code, 1 px for phase shift)."""
 
     depth: torch.Tensor
     valid: torch.Tensor
     columns: torch.Tensor
     captures: torch.Tensor
     view: View
+    gt_columns: torch.Tensor
+    column_tolerance: float
 
     def errors(self) -> dict[str, float]:
         """Median / 95th-percentile absolute depth error over valid pixels, density (% of GT pixels decoded),
-        and the fraction of valid pixels off by more than 5 % of their depth (should be ~0)."""
+        and ``wrong_code``: % of valid pixels whose column is off by more than ``column_tolerance`` (should
+        be ~0: a wrong code reported valid), plus the median column error in projector pixels."""
         gt = self.view.depth[None, None]
         m = self.valid & (gt > 0)
         e = (self.depth - gt)[m].abs()
-        q = lambda p: float(torch.quantile(e, p)) if e.numel() else math.nan
-        return {"median_abs_err": q(0.5), "p95_abs_err": q(0.95),
+        ec = (self.columns - self.gt_columns)[m].abs()
+        q = lambda x, p: float(torch.quantile(x, p)) if x.numel() else math.nan
+        return {"median_abs_err": q(e, 0.5), "p95_abs_err": q(e, 0.95), "median_column_err": q(ec, 0.5),
                 "density": 100.0 * float(m.sum()) / max(1, int((gt > 0).sum())),
-                "gross_5pct": 100.0 * float((e > 0.05 * gt[m]).float().mean()) if e.numel() else math.nan}
+                "wrong_code": 100.0 * float((ec > self.column_tolerance).float().mean()) if e.numel() else math.nan}
 
 
 def coded_light_scan(scene: Scene, camera: PinholeCamera, projector: PinholeCamera, method: str = "gray+phase",
@@ -333,6 +339,7 @@ def coded_light_scan(scene: Scene, camera: PinholeCamera, projector: PinholeCame
         cap = capture_patterns(scene, camera, projector, pats, **capture_options)
         index, ok = decode_gray_code(to_grey(cap.images), min_contrast=min_contrast, min_relative_contrast=0.6)
         cols = index.to(torch.float64) * unit + (unit - 1) / 2.0  # stripe centre
+        tol = unit / 2 + 1.0
     elif method == "gray+phase":
         if period % 2:
             raise StereoInputError(f"period: expected an even number of projector pixels, got {period}")
@@ -343,6 +350,7 @@ def coded_light_scan(scene: Scene, camera: PinholeCamera, projector: PinholeCame
         index, uok = decode_gray_code(grey[:, :gray.shape[0]], min_contrast=min_contrast)
         phase, _, pok = decode_phase_shift(grey[:, gray.shape[0]:], min_modulation=min_contrast / 2)
         cols, ok = unwrap_phase(phase, pok, index, uok, period)
+        tol = 1.0
     else:
         raise StereoInputError(f"method: expected 'gray' or 'gray+phase', got {method!r}")
     depth, valid = projector_depth(cols, ok, camera, projector)
@@ -351,7 +359,8 @@ def coded_light_scan(scene: Scene, camera: PinholeCamera, projector: PinholeCame
     if method == "gray+phase" and max_relative_jump:
         valid = reject_depth_edges(depth, valid, max_relative_jump)
         depth = torch.where(valid, depth, torch.zeros_like(depth))
-    return CodedScan(depth, valid, cols, cap.images, cap.view)
+    gt_cols = projector.project(cap.view.points)[0][..., 0][None, None]
+    return CodedScan(depth, valid, cols, cap.images, cap.view, gt_cols, tol)
 
 
 # ----------------------------------------------------------------------------------------------- active stereo

@@ -40,7 +40,7 @@ def projector_column_planes(u_proj: torch.Tensor, camera: PinholeCamera,
 
 
 def ray_plane_depth(K: torch.Tensor, uv: torch.Tensor, normals: torch.Tensor, offsets: torch.Tensor,
-                    min_angle_deg: float = 2.0, degenerate: str = "raise") -> tuple[torch.Tensor, torch.Tensor]:
+                    min_angle_deg: float = 0.5, degenerate: str = "raise") -> tuple[torch.Tensor, torch.Tensor]:
     """Depth where the camera rays through pixels ``uv`` meet the planes ``normals . X = offsets`` (camera frame).
 
     Args:
@@ -102,15 +102,24 @@ def depth_to_points(depth: torch.Tensor, valid: torch.Tensor, K: torch.Tensor,
 
 def reject_depth_edges(depth: torch.Tensor, valid: torch.Tensor, max_relative_jump: float = 0.03
                        ) -> torch.Tensor:
-    """Flying-pixel filter: invalidate pixels next to a depth jump.
+    """Flying-pixel filter: invalidate pixels at a depth jump.
 
     A pixel that straddles a depth discontinuity mixes the light of two surfaces and decodes to either of
-    them (or to neither); it is dropped when any valid 8-neighbour differs from it by more than
-    ``max_relative_jump * depth``. ``depth``/``valid``: :math:`(B, 1, H, W)`. Returns the new valid mask.
+    them (or to neither). Inverse depth is affine in ``(u, v)`` on any plane, so its second difference along
+    a line of three valid pixels is ~0 on smooth surfaces however slanted, and as large as the jump at both
+    pixels beside a step. A pixel is dropped when, along the row, the column or a diagonal,
+    ``|1/z(p-s) - 2/z(p) + 1/z(p+s)| > max_relative_jump / z(p)``.
+    ``depth``/``valid``: :math:`(B, 1, H, W)`. Returns the new valid mask.
     """
     check_shape(depth, ["B", "1", "H", "W"], "depth")
-    big = torch.finfo(depth.dtype).max / 4
-    hi = torch.nn.functional.max_pool2d(torch.where(valid, depth, torch.full_like(depth, -big)), 3, 1, 1)
-    lo = -torch.nn.functional.max_pool2d(torch.where(valid, -depth, torch.full_like(depth, -big)), 3, 1, 1)
-    jump = torch.maximum(hi - depth, depth - lo)
-    return valid & (jump <= max_relative_jump * depth)
+    inv = torch.where(valid, 1.0 / torch.where(valid, depth, torch.ones_like(depth)), torch.zeros_like(depth))
+    pad_inv = torch.nn.functional.pad(inv, (1, 1, 1, 1))
+    pad_ok = torch.nn.functional.pad(valid, (1, 1, 1, 1))
+    h, w = depth.shape[-2:]
+    shifted = lambda x, dy, dx: x[..., 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+    keep = valid.clone()
+    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        both = shifted(pad_ok, dy, dx) & shifted(pad_ok, -dy, -dx) & valid
+        second = (shifted(pad_inv, dy, dx) - 2 * inv + shifted(pad_inv, -dy, -dx)).abs()
+        keep &= ~(both & (second > max_relative_jump * inv))
+    return keep
