@@ -1,4 +1,4 @@
-"""Rectification benchmark on data_gen's unrectified rigs: ours vs OpenCV, in one process, same rigs, same matches.
+"""Rectification benchmark on data_gen's unrectified rigs: ours vs OpenCV, one process, same rigs and matches.
 
     python scripts/bench_rectify.py [--rigs 50] [--seed 0] [--rendered 3] [--sigma 0.5] [--outliers 0.2]
                                     [--json FILE]
@@ -51,23 +51,35 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     rows = rig_benchmark(rigs=args.rigs, seed=args.seed, sigma=args.sigma, outliers=args.outliers)
     report: dict = {"rigs": args.rigs, "seed": args.seed, "sigma": args.sigma, "outliers": args.outliers}
-    for title, subset in (("all rigs", rows), ("undistorted rigs", [r for r in rows if not r["distorted"]]),
-                          ("rigs with lens distortion", [r for r in rows if r["distorted"]])):
+    for title, subset in (
+        ("all rigs", rows),
+        ("undistorted rigs", [r for r in rows if not r["distorted"]]),
+        ("rigs with lens distortion", [r for r in rows if r["distorted"]]),
+    ):
         if not subset:
             continue
         summary = summarize(subset)
         print(format_table(summary, f"\n== data_gen rigs (seed {args.seed}): {title} ==  |dy| in px"))
         report[title] = summary
     tri = max(r["triangulation_rel_err"] for r in rows)
-    print(f"\ntriangulation (DLT) of the exact correspondences vs data_gen depth: max relative error {tri:.2e}")
+    print(
+        f"\ntriangulation (DLT) of the exact correspondences vs data_gen depth: max relative error {tri:.2e}"
+    )
     report["triangulation_max_rel_err"] = tri
     if args.rendered > 0:
         rendered, tri_r = rendered_benchmark(pairs=args.rendered, seed=args.seed)
         summary = summarize(rendered)
-        print(format_table(summary, f"\n== {args.rendered} rendered unrectified pairs: all valid non-occluded pixels, "
-                                    f"real SIFT matches for the uncalibrated rows =="))
-        print(f"triangulation vs rendered depth: max relative error {tri_r['max_rel_depth_err']:.2e}, "
-              f"median {tri_r['median_rel_depth_err']:.2e}")
+        print(
+            format_table(
+                summary,
+                f"\n== {args.rendered} rendered unrectified pairs: all valid non-occluded pixels, "
+                f"real SIFT matches for the uncalibrated rows ==",
+            )
+        )
+        print(
+            f"triangulation vs rendered depth: max relative error {tri_r['max_rel_depth_err']:.2e}, "
+            f"median {tri_r['median_rel_depth_err']:.2e}"
+        )
         report["rendered"] = summary
         report["rendered_triangulation"] = tri_r
     print(f"\n({time.perf_counter() - t0:.1f} s)")

@@ -1,4 +1,4 @@
-"""SIFT keypoints (``cv2.SIFT_create``) matched by nearest neighbour with Lowe's ratio test and a mutual check."""
+"""SIFT keypoints (``cv2.SIFT_create``) matched by nearest neighbour, Lowe's ratio test and a mutual check."""
 
 from __future__ import annotations
 
@@ -22,8 +22,9 @@ def image_to_uint8(image: torch.Tensor) -> np.ndarray:
     return (img * 255).round().to(torch.uint8).numpy()
 
 
-def match_descriptors(desc1: torch.Tensor, desc2: torch.Tensor, ratio: float = 0.75,
-                      mutual: bool = True) -> torch.Tensor:
+def match_descriptors(
+    desc1: torch.Tensor, desc2: torch.Tensor, ratio: float = 0.75, mutual: bool = True
+) -> torch.Tensor:
     """Nearest-neighbour matching with Lowe's ratio test.
 
     Args:
@@ -48,8 +49,14 @@ def match_descriptors(desc1: torch.Tensor, desc2: torch.Tensor, ratio: float = 0
     return torch.stack([idx1[keep], idx2[keep]], dim=1)
 
 
-def match_sift(left: torch.Tensor, right: torch.Tensor, ratio: float = 0.75, max_features: int = 4000,
-               min_matches: int = 8, mutual: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+def match_sift(
+    left: torch.Tensor,
+    right: torch.Tensor,
+    ratio: float = 0.75,
+    max_features: int = 4000,
+    min_matches: int = 8,
+    mutual: bool = True,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """SIFT matches between the first images of two batches.
 
     Args:
@@ -79,8 +86,10 @@ def match_sift(left: torch.Tensor, right: torch.Tensor, ratio: float = 0.75, max
         pairs = match_descriptors(torch.from_numpy(d1), torch.from_numpy(d2), ratio=ratio, mutual=mutual)
     if pairs.shape[0] < min_matches:
         raise DegenerateGeometryError(
-            f"left, right: only {pairs.shape[0]} SIFT matches pass the ratio test {ratio} (keypoints: {len(kp1)} "
-            f"and {len(kp2)}); need at least {min_matches}. The images may be textureless or unrelated.")
+            f"left, right: only {pairs.shape[0]} SIFT matches pass the ratio test {ratio} "
+            f"(keypoints: {len(kp1)} and {len(kp2)}); need at least {min_matches}. The images may be "
+            "textureless or unrelated."
+        )
     xy1 = torch.tensor([kp1[i].pt for i in pairs[:, 0].tolist()], dtype=torch.float64)
     xy2 = torch.tensor([kp2[i].pt for i in pairs[:, 1].tolist()], dtype=torch.float64)
     return xy1, xy2

@@ -12,9 +12,9 @@ error ``|y_left - y_right|`` of those correspondences after rectification:
 - ``opencv-stereoRectifyUncalibrated``: ``cv2.findFundamentalMat(FM_RANSAC)`` on the same matches +
   ``cv2.stereoRectifyUncalibrated``.
 
-:func:`rendered_benchmark` does the same on fully rendered pairs (``data_gen.render_pair``): every valid pixel's
-ground-truth correspondence, real SIFT matches for the uncalibrated methods, and the triangulation error
-against the rendered depth.
+:func:`rendered_benchmark` does the same on fully rendered pairs (``data_gen.render_pair``): every valid
+pixel's ground-truth correspondence, real SIFT matches for the uncalibrated methods, and the triangulation
+error against the rendered depth.
 """
 
 from __future__ import annotations
@@ -34,8 +34,15 @@ from stereonet.geometry.rectify import (
 from stereonet.geometry.triangulate import triangulate
 from stereonet.types import Calibration
 
-__all__ = ["METHODS", "RigCase", "data_gen_case", "format_table", "rendered_benchmark", "rig_benchmark",
-           "summarize"]
+__all__ = [
+    "METHODS",
+    "RigCase",
+    "data_gen_case",
+    "format_table",
+    "rendered_benchmark",
+    "rig_benchmark",
+    "summarize",
+]
 
 METHODS = ("ours-calibrated", "opencv-stereoRectify", "ours-uncalibrated", "opencv-stereoRectifyUncalibrated")
 
@@ -128,13 +135,20 @@ def _evaluate(case: RigCase, matches: tuple[torch.Tensor, torch.Tensor], seed: i
     return out
 
 
-def rig_benchmark(rigs: int = 50, seed: int = 0, height: int = 240, width: int = 320, count: int = 400,
-                  sigma: float = 0.5, outliers: float = 0.2) -> list[dict]:
+def rig_benchmark(
+    rigs: int = 50,
+    seed: int = 0,
+    height: int = 240,
+    width: int = 320,
+    count: int = 400,
+    sigma: float = 0.5,
+    outliers: float = 0.2,
+) -> list[dict]:
     """Per-rig, per-method rows ``{"rig", "method", "distorted", "median_dy", "p95_dy", "max_dy", "seconds",
     "triangulation_rel_err", "pooled"}`` on data_gen rigs ``0..rigs-1`` of ``seed`` (about half of them have
     radial lens distortion: the uncalibrated methods then also carry the error of a single F for a distorted
-    pair, so ``distorted`` is recorded). ``triangulation_rel_err`` is the largest relative depth error of our DLT
-    triangulation of the exact correspondences against data_gen's depth; ``pooled`` holds every |dy|."""
+    pair, so ``distorted`` is recorded). ``triangulation_rel_err`` is the largest relative depth error of our
+    DLT triangulation of the exact correspondences against data_gen's depth; ``pooled`` holds every |dy|."""
     rows: list[dict] = []
     for index in range(rigs):
         case = data_gen_case(seed, index, height, width, count)
@@ -143,9 +157,19 @@ def rig_benchmark(rigs: int = 50, seed: int = 0, height: int = 240, width: int =
         tri_err = float(((tri.points[:, 2] - case.points[:, 2]).abs() / case.points[:, 2]).max())
         distorted = case.calib.dist1 is not None and bool((case.calib.dist1.abs() > 0).any())
         for method, (dy, sec) in _evaluate(case, matches, index).items():
-            rows.append(dict(rig=case.name, method=method, distorted=distorted, median_dy=float(dy.median()),
-                             p95_dy=float(torch.quantile(dy, 0.95)), max_dy=float(dy.max()), seconds=sec,
-                             triangulation_rel_err=tri_err, pooled=dy))
+            rows.append(
+                dict(
+                    rig=case.name,
+                    method=method,
+                    distorted=distorted,
+                    median_dy=float(dy.median()),
+                    p95_dy=float(torch.quantile(dy, 0.95)),
+                    max_dy=float(dy.max()),
+                    seconds=sec,
+                    triangulation_rel_err=tri_err,
+                    pooled=dy,
+                )
+            )
     return rows
 
 
@@ -156,26 +180,39 @@ def summarize(rows: list[dict]) -> list[dict]:
     for method in dict.fromkeys(r["method"] for r in rows):
         mine = [r for r in rows if r["method"] == method]
         pooled = torch.cat([r["pooled"] for r in mine])
-        out.append(dict(method=method, rigs=len(mine), median_dy=float(pooled.median()),
-                        p95_dy=float(torch.quantile(pooled, 0.95)), max_dy=float(pooled.max()),
-                        worst_rig_median=max(r["median_dy"] for r in mine),
-                        seconds=float(np.mean([r["seconds"] for r in mine]))))
+        out.append(
+            dict(
+                method=method,
+                rigs=len(mine),
+                median_dy=float(pooled.median()),
+                p95_dy=float(torch.quantile(pooled, 0.95)),
+                max_dy=float(pooled.max()),
+                worst_rig_median=max(r["median_dy"] for r in mine),
+                seconds=float(np.mean([r["seconds"] for r in mine])),
+            )
+        )
     return out
 
 
 def format_table(summary: list[dict], title: str) -> str:
-    head = f"{'method':34s} {'rigs':>4s} {'median|dy|':>11s} {'p95|dy|':>9s} {'max|dy|':>9s} {'worst rig med':>13s} {'s/rig':>7s}"
+    head = (
+        f"{'method':34s} {'rigs':>4s} {'median|dy|':>11s} {'p95|dy|':>9s} {'max|dy|':>9s} "
+        f"{'worst rig med':>13s} {'s/rig':>7s}"
+    )
     lines = [title, head, "-" * len(head)]
     for s in summary:
-        lines.append(f"{s['method']:34s} {s['rigs']:4d} {s['median_dy']:11.2e} {s['p95_dy']:9.2e} {s['max_dy']:9.2e} "
-                     f"{s['worst_rig_median']:13.2e} {s['seconds']:7.3f}")
+        lines.append(
+            f"{s['method']:34s} {s['rigs']:4d} {s['median_dy']:11.2e} {s['p95_dy']:9.2e} {s['max_dy']:9.2e} "
+            f"{s['worst_rig_median']:13.2e} {s['seconds']:7.3f}"
+        )
     return "\n".join(lines)
 
 
-def rendered_benchmark(pairs: int = 3, seed: int = 0, height: int = 160, width: int = 224,
-                       difficulty: int = 2) -> tuple[list[dict], dict]:
-    """Rendered unrectified pairs: GT correspondence of every valid, non-occluded left pixel; real SIFT matches
-    for the uncalibrated methods. Returns (per-pair rows as :func:`rig_benchmark`, triangulation stats
+def rendered_benchmark(
+    pairs: int = 3, seed: int = 0, height: int = 160, width: int = 224, difficulty: int = 2
+) -> tuple[list[dict], dict]:
+    """Rendered unrectified pairs: GT correspondence of every valid, non-occluded left pixel; real SIFT
+    matches for the uncalibrated methods. Returns (per-pair rows as :func:`rig_benchmark`, triangulation stats
     ``{"max_rel_depth_err", "median_rel_depth_err"}`` against the rendered depth)."""
     import data_gen
     from stereonet.features import match_sift
@@ -183,8 +220,9 @@ def rendered_benchmark(pairs: int = 3, seed: int = 0, height: int = 160, width: 
     rows: list[dict] = []
     rel_errs = []
     for index in range(pairs):
-        item = data_gen.render_pair(seed, index, difficulty=difficulty, height=height, width=width,
-                                    rectified=False, supersample=1)
+        item = data_gen.render_pair(
+            seed, index, difficulty=difficulty, height=height, width=width, rectified=False, supersample=1
+        )
         ok = item["valid"][0] & ~item["occlusion"][0]
         ys, xs = torch.nonzero(ok, as_tuple=True)
         gt1 = torch.stack([xs, ys], -1).double()
@@ -196,8 +234,17 @@ def rendered_benchmark(pairs: int = 3, seed: int = 0, height: int = 160, width: 
         left, right = item["left"][None], item["right"][None]
         matches = match_sift(left, right)
         for method, (dy, sec) in _evaluate(case, matches, index).items():
-            rows.append(dict(rig=case.name, method=method, median_dy=float(dy.median()),
-                             p95_dy=float(torch.quantile(dy, 0.95)), max_dy=float(dy.max()), seconds=sec,
-                             pooled=dy, matches=int(len(matches[0]))))
+            rows.append(
+                dict(
+                    rig=case.name,
+                    method=method,
+                    median_dy=float(dy.median()),
+                    p95_dy=float(torch.quantile(dy, 0.95)),
+                    max_dy=float(dy.max()),
+                    seconds=sec,
+                    pooled=dy,
+                    matches=int(len(matches[0])),
+                )
+            )
     rel = torch.cat(rel_errs)
     return rows, {"max_rel_depth_err": float(rel.max()), "median_rel_depth_err": float(rel.median())}

@@ -48,7 +48,9 @@ def check_points(points: object, name: str, dim: int, min_count: int = 1) -> tor
         raise TypeError(f"{name}: expected a floating-point tensor, got dtype {points.dtype}")
     if points.shape[-2] < min_count:
         raise DegenerateGeometryError(
-            f"{name}: expected at least {min_count} points, got {points.shape[-2]} (shape {tuple(points.shape)})")
+            f"{name}: expected at least {min_count} points, got {points.shape[-2]} "
+            f"(shape {tuple(points.shape)})"
+        )
     check_finite(points, name)
     return points
 
@@ -63,8 +65,9 @@ def check_intrinsics(K: object, name: str = "K") -> torch.Tensor:
     det = torch.linalg.det(K.detach().double())
     scale = K.detach().double().abs().amax(dim=(-2, -1)).clamp_min(1e-300) ** 3
     if bool((det.abs() <= 1e-12 * scale).any()):
-        raise StereoInputError(f"{name}: expected an invertible intrinsic matrix, got a singular one "
-                               f"(shape {tuple(K.shape)})")
+        raise StereoInputError(
+            f"{name}: expected an invertible intrinsic matrix, got a singular one (shape {tuple(K.shape)})"
+        )
     return K
 
 
@@ -93,7 +96,9 @@ def camera_centre(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return -(R.transpose(-1, -2) @ t.unsqueeze(-1)).squeeze(-1)
 
 
-def projection_matrix(K: torch.Tensor, R: torch.Tensor | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
+def projection_matrix(
+    K: torch.Tensor, R: torch.Tensor | None = None, t: torch.Tensor | None = None
+) -> torch.Tensor:
     """``P = K [R | t]`` :math:`(*, 3, 4)` (``R = I, t = 0`` when omitted)."""
     if R is None:
         R = torch.eye(3, dtype=K.dtype, device=K.device).expand_as(K)
@@ -105,7 +110,9 @@ def projection_matrix(K: torch.Tensor, R: torch.Tensor | None = None, t: torch.T
 def _dist_like(dist: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
     dist = torch.as_tensor(dist, dtype=ref.dtype, device=ref.device)
     if dist.shape[-1] not in (4, 5, 8, 12, 14):
-        raise StereoInputError(f"dist: expected 4, 5, 8, 12 or 14 OpenCV coefficients, got shape {tuple(dist.shape)}")
+        raise StereoInputError(
+            f"dist: expected 4, 5, 8, 12 or 14 OpenCV coefficients, got shape {tuple(dist.shape)}"
+        )
     return dist
 
 
@@ -116,17 +123,23 @@ def distort_pixels(pixels: torch.Tensor, K: torch.Tensor, dist: torch.Tensor | N
     return distort_points(pixels, K, _dist_like(dist, pixels))
 
 
-def undistort_pixels(pixels: torch.Tensor, K: torch.Tensor, dist: torch.Tensor | None,
-                     num_iters: int = 20) -> torch.Tensor:
+def undistort_pixels(
+    pixels: torch.Tensor, K: torch.Tensor, dist: torch.Tensor | None, num_iters: int = 20
+) -> torch.Tensor:
     """Recorded pixels :math:`(*, N, 2)` -> ideal pixels of the same ``K`` (kornia's fixed-point inverse)."""
     if dist is None:
         return pixels
     return undistort_points(pixels, K, _dist_like(dist, pixels), num_iters=num_iters)
 
 
-def project_points(points: torch.Tensor, K: torch.Tensor, R: torch.Tensor | None = None,
-                   t: torch.Tensor | None = None, dist: torch.Tensor | None = None,
-                   return_depth: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+def project_points(
+    points: torch.Tensor,
+    K: torch.Tensor,
+    R: torch.Tensor | None = None,
+    t: torch.Tensor | None = None,
+    dist: torch.Tensor | None = None,
+    return_depth: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """World -> camera -> image.
 
     Args:
@@ -136,8 +149,8 @@ def project_points(points: torch.Tensor, K: torch.Tensor, R: torch.Tensor | None
         return_depth: also return the camera-frame depth :math:`(*, N)`.
 
     Returns:
-        pixels :math:`(*, N, 2)` (and depth). Points with ``|Z_c| < 1e-12`` are projected as if at ``Z_c = 1e-12``
-        (finite, never NaN); check ``depth > 0`` to know which points are in front of the camera.
+        pixels :math:`(*, N, 2)` (and depth). Points with ``|Z_c| < 1e-12`` are projected as if at
+        ``Z_c = 1e-12`` (finite, never NaN); ``depth > 0`` tells which points are in front of the camera.
     """
     check_points(points, "points", 3)
     check_intrinsics(K, "K")
@@ -151,9 +164,14 @@ def project_points(points: torch.Tensor, K: torch.Tensor, R: torch.Tensor | None
     return (pixels, z) if return_depth else pixels
 
 
-def back_project(pixels: torch.Tensor, K: torch.Tensor, depth: torch.Tensor | None = None,
-                 R: torch.Tensor | None = None, t: torch.Tensor | None = None,
-                 dist: torch.Tensor | None = None) -> torch.Tensor:
+def back_project(
+    pixels: torch.Tensor,
+    K: torch.Tensor,
+    depth: torch.Tensor | None = None,
+    R: torch.Tensor | None = None,
+    t: torch.Tensor | None = None,
+    dist: torch.Tensor | None = None,
+) -> torch.Tensor:
     """Image -> camera -> world (inverse of :func:`project_points`).
 
     Args:

@@ -1,7 +1,7 @@
 """Disparity <-> depth <-> 3D points for a rectified rig.
 
-``z = f * B / (d + doffs)`` with ``f`` the rectified focal length in px, ``B = |t|`` the baseline and ``doffs``
-the x-difference of the principal points (``cx_right - cx_left``, Middlebury 2014); ``d`` is the
+``z = f * B / (d + doffs)`` with ``f`` the rectified focal length in px, ``B = |t|`` the baseline and
+``doffs`` the x-difference of the principal points (``cx_right - cx_left``, Middlebury 2014); ``d`` is the
 left-referenced disparity (``x_right = x_left - d``). Everything is differentiable in the disparity/depth
 (and in ``focal``/``baseline`` when they are tensors) and never produces NaN or inf: pixels without a
 depth (``d + doffs <= 0``, ``valid`` False, ``z <= 0``) get 0.
@@ -30,11 +30,14 @@ def _rig_parameters(calib: Calibration | None, focal, baseline, doffs) -> tuple[
             raise TypeError(f"calib: expected a stereonet.types.Calibration, got {type(calib).__name__}")
         if not calib.is_rectified(_RECTIFIED_TOL):
             raise StereoInputError(
-                "calib: expected a rectified rig (R = I, t along x, equal K up to cx, no distortion); rectify "
-                "first with stereonet.geometry.rectify_calibrated and use its .calib")
+                "calib: expected a rectified rig (R = I, t along x, equal K up to cx, no distortion); "
+                "rectify first with stereonet.geometry.rectify_calibrated and use its .calib"
+            )
         if float(calib.t[0]) >= 0:
-            raise StereoInputError(f"calib: expected the right camera to the right of the left one (t[0] < 0), "
-                                   f"got t[0] = {float(calib.t[0]):.4g}")
+            raise StereoInputError(
+                f"calib: expected the right camera to the right of the left one (t[0] < 0), "
+                f"got t[0] = {float(calib.t[0]):.4g}"
+            )
         return calib.focal, calib.baseline, float(calib.doffs)
     if focal is None or baseline is None:
         raise StereoInputError("calib: expected a Calibration, or focal and baseline (and optionally doffs)")
@@ -56,15 +59,24 @@ def _check_map(x: object, name: str, valid: torch.Tensor | None) -> torch.Tensor
     if valid is not None:
         check_tensor(valid, "valid")
         if valid.shape != x.shape or valid.dtype != torch.bool:
-            raise StereoInputError(f"valid: expected a bool tensor of shape {tuple(x.shape)}, "
-                                   f"got {valid.dtype} {tuple(valid.shape)}")
+            raise StereoInputError(
+                f"valid: expected a bool tensor of shape {tuple(x.shape)}, "
+                f"got {valid.dtype} {tuple(valid.shape)}"
+            )
     # Non-finite values are allowed only where valid is False (they are ignored there).
     check_finite(x if valid is None else torch.where(valid, x, torch.zeros_like(x)), name)
     return x
 
 
-def disparity_to_depth(disparity: torch.Tensor, calib: Calibration | None = None, *, focal=None, baseline=None,
-                       doffs=None, valid: torch.Tensor | None = None) -> torch.Tensor:
+def disparity_to_depth(
+    disparity: torch.Tensor,
+    calib: Calibration | None = None,
+    *,
+    focal=None,
+    baseline=None,
+    doffs=None,
+    valid: torch.Tensor | None = None,
+) -> torch.Tensor:
     """``z = f * B / (d + doffs)``.
 
     Args:
@@ -85,8 +97,15 @@ def disparity_to_depth(disparity: torch.Tensor, calib: Calibration | None = None
     return torch.where(has_depth, f * b / safe, torch.zeros_like(denom))
 
 
-def depth_to_disparity(depth: torch.Tensor, calib: Calibration | None = None, *, focal=None, baseline=None,
-                       doffs=None, valid: torch.Tensor | None = None) -> torch.Tensor:
+def depth_to_disparity(
+    depth: torch.Tensor,
+    calib: Calibration | None = None,
+    *,
+    focal=None,
+    baseline=None,
+    doffs=None,
+    valid: torch.Tensor | None = None,
+) -> torch.Tensor:
     """``d = f * B / z - doffs`` (inverse of :func:`disparity_to_depth`).
 
     Args:
@@ -102,8 +121,9 @@ def depth_to_disparity(depth: torch.Tensor, calib: Calibration | None = None, *,
     return torch.where(has, f * b / safe - off, torch.zeros_like(depth))
 
 
-def disparity_to_points(disparity: torch.Tensor, valid: torch.Tensor | None, calib: Calibration,
-                        image: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+def disparity_to_points(
+    disparity: torch.Tensor, valid: torch.Tensor | None, calib: Calibration, image: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Coloured point cloud in the (rectified) left camera frame, ready for ``stereonet.io.write_ply``.
 
     Args:
@@ -112,8 +132,8 @@ def disparity_to_points(disparity: torch.Tensor, valid: torch.Tensor | None, cal
         image: optional left image :math:`(1, C, H, W)` in [0, 1], C = 1 or 3, for the colours.
 
     Returns:
-        (points :math:`(N, 3)` in the disparity's dtype (differentiable), colours :math:`(N, 3)` uint8 or None),
-        one row per valid pixel with a positive depth, in row-major pixel order.
+        (points :math:`(N, 3)` in the disparity's dtype (differentiable), colours :math:`(N, 3)` uint8 or
+        None), one row per valid pixel with a positive depth, in row-major pixel order.
     """
     _check_map(disparity, "disparity", valid)
     if disparity.shape[0] != 1:
@@ -122,8 +142,11 @@ def disparity_to_points(disparity: torch.Tensor, valid: torch.Tensor | None, cal
     keep = depth > 0
     _, _, h, w = disparity.shape
     K = calib.K1.to(disparity.dtype).to(disparity.device)
-    v, u = torch.meshgrid(torch.arange(h, dtype=disparity.dtype, device=disparity.device),
-                          torch.arange(w, dtype=disparity.dtype, device=disparity.device), indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(h, dtype=disparity.dtype, device=disparity.device),
+        torch.arange(w, dtype=disparity.dtype, device=disparity.device),
+        indexing="ij",
+    )
     z = depth[keep]
     y = (v[keep] - K[1, 2]) / K[1, 1] * z
     x = (u[keep] - K[0, 2] - K[0, 1] * (v[keep] - K[1, 2]) / K[1, 1]) / K[0, 0] * z
@@ -146,11 +169,17 @@ def reproject_disparity(disparity: torch.Tensor, Q: torch.Tensor | np.ndarray) -
     Q = torch.as_tensor(Q, dtype=disparity.dtype, device=disparity.device)
     check_shape(Q, ["4", "4"], "Q")
     b, _, h, w = disparity.shape
-    v, u = torch.meshgrid(torch.arange(h, dtype=disparity.dtype, device=disparity.device),
-                          torch.arange(w, dtype=disparity.dtype, device=disparity.device), indexing="ij")
-    uvd1 = torch.stack([u.expand(b, h, w), v.expand(b, h, w), disparity[:, 0], torch.ones_like(disparity[:, 0])],
-                       dim=1)  # Bx4xHxW
+    v, u = torch.meshgrid(
+        torch.arange(h, dtype=disparity.dtype, device=disparity.device),
+        torch.arange(w, dtype=disparity.dtype, device=disparity.device),
+        indexing="ij",
+    )
+    uvd1 = torch.stack(
+        [u.expand(b, h, w), v.expand(b, h, w), disparity[:, 0], torch.ones_like(disparity[:, 0])], dim=1
+    )  # Bx4xHxW
     xyzw = torch.einsum("ij,bjhw->bihw", Q, uvd1)
     wgt = xyzw[:, 3:]
     ok = wgt > 0
-    return torch.where(ok, xyzw[:, :3] / torch.where(ok, wgt, torch.ones_like(wgt)), torch.zeros_like(xyzw[:, :3]))
+    return torch.where(
+        ok, xyzw[:, :3] / torch.where(ok, wgt, torch.ones_like(wgt)), torch.zeros_like(xyzw[:, :3])
+    )

@@ -78,7 +78,9 @@ def normalize_points_hartley(points: torch.Tensor) -> tuple[torch.Tensor, torch.
     centred = points - centroid
     mean_dist = torch.linalg.vector_norm(centred, dim=-1).mean(dim=-1)  # *
     if bool((mean_dist <= 1e-12 * (1.0 + centroid.detach().abs().amax())).any()):
-        raise DegenerateGeometryError("points: all points coincide; Hartley normalisation needs spread points")
+        raise DegenerateGeometryError(
+            "points: all points coincide; Hartley normalisation needs spread points"
+        )
     scale = math.sqrt(2.0) / mean_dist  # *
     zero, one = torch.zeros_like(scale), torch.ones_like(scale)
     cx, cy = centroid[..., 0, 0], centroid[..., 0, 1]
@@ -134,16 +136,22 @@ def fundamental_8point(pts1: torch.Tensor, pts2: torch.Tensor) -> torch.Tensor:
     check_points(pts1, "pts1", 2, min_count=8)
     check_points(pts2, "pts2", 2, min_count=8)
     if pts1.shape != pts2.shape:
-        raise StereoInputError(f"pts2: expected the same shape as pts1 {tuple(pts1.shape)}, got {tuple(pts2.shape)}")
+        raise StereoInputError(
+            f"pts2: expected the same shape as pts1 {tuple(pts1.shape)}, got {tuple(pts2.shape)}"
+        )
     F, margin = _eight_point_core(pts1.double(), pts2.double())
     if bool((margin < _RANK_TOL.get(pts1.dtype, 1e-5)).any()):
         raise DegenerateGeometryError(
-            "pts1, pts2: the eight-point system has rank < 8, so F is not determined (coincident, collinear or "
-            f"coplanar points, or a pure rotation); smallest relative singular value {float(margin.min()):.1e}")
+            "pts1, pts2: the eight-point system has rank < 8, so F is not determined (coincident, collinear "
+            "or coplanar points, or a pure rotation); smallest relative singular value "
+            f"{float(margin.min()):.1e}"
+        )
     return F.to(pts1.dtype)
 
 
-def sampson_distance(pts1: torch.Tensor, pts2: torch.Tensor, F: torch.Tensor, squared: bool = True) -> torch.Tensor:
+def sampson_distance(
+    pts1: torch.Tensor, pts2: torch.Tensor, F: torch.Tensor, squared: bool = True
+) -> torch.Tensor:
     """First-order geometric error of ``x2^T F x1 = 0``:
     ``(x2^T F x1)^2 / ((F x1)_1^2 + (F x1)_2^2 + (F^T x2)_1^2 + (F^T x2)_2^2)`` in px² (px if not squared).
 
@@ -220,7 +228,9 @@ def essential_from_pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return cross_product_matrix(t) @ R
 
 
-def fundamental_from_pose(K1: torch.Tensor, K2: torch.Tensor, R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+def fundamental_from_pose(
+    K1: torch.Tensor, K2: torch.Tensor, R: torch.Tensor, t: torch.Tensor
+) -> torch.Tensor:
     """F of a calibrated rig (``X_2 = R X_1 + t``), canonical scale/sign."""
     return fundamental_from_essential(essential_from_pose(R, t), K1, K2)
 
@@ -232,7 +242,9 @@ def project_to_essential(E: torch.Tensor) -> torch.Tensor:
         DegenerateGeometryError: when E is (numerically) zero, i.e. a pure rotation with t = 0.
     """
     U, s, Vh = torch.linalg.svd(E)
-    if bool((s[..., 0] <= 1e-12 * E.detach().abs().amax().clamp_min(1e-300)).any()) or bool((s[..., 0] == 0).any()):
+    if bool((s[..., 0] <= 1e-12 * E.detach().abs().amax().clamp_min(1e-300)).any()) or bool(
+        (s[..., 0] == 0).any()
+    ):
         raise DegenerateGeometryError("E: the essential matrix is zero (pure rotation without translation)")
     ones = torch.ones_like(s)
     ones = torch.stack([ones[..., 0], ones[..., 1], torch.zeros_like(ones[..., 2])], -1)
@@ -266,8 +278,9 @@ class PoseEstimate(NamedTuple):
     in_front: torch.Tensor
 
 
-def pose_from_essential(E: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor, K1: torch.Tensor,
-                        K2: torch.Tensor) -> PoseEstimate:
+def pose_from_essential(
+    E: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor, K1: torch.Tensor, K2: torch.Tensor
+) -> PoseEstimate:
     """Pick the one of the four decompositions of E that puts the matches in front of both cameras.
 
     Args:
@@ -295,16 +308,19 @@ def pose_from_essential(E: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor,
     best = int(counts.argmax())
     if int(counts[best]) * 2 <= pts1.shape[-2]:
         raise DegenerateGeometryError(
-            f"E, pts1, pts2: no decomposition puts most matches in front of both cameras (best {int(counts[best])} "
-            f"of {pts1.shape[-2]}); E does not fit these matches")
+            "E, pts1, pts2: no decomposition puts most matches in front of both cameras "
+            f"(best {int(counts[best])} of {pts1.shape[-2]}); E does not fit these matches"
+        )
     return PoseEstimate(R4[best], t4[best], counts)
 
 
-def homography_explains_matches(pts1: torch.Tensor, pts2: torch.Tensor, threshold: float = 3.0,
-                                min_off_plane: float = 0.05) -> bool:
+def homography_explains_matches(
+    pts1: torch.Tensor, pts2: torch.Tensor, threshold: float = 3.0, min_off_plane: float = 0.05
+) -> bool:
     """True when one homography (kornia's RANSAC, transfer error <= ``threshold`` px) explains the matches
     :math:`(N, 2)` except fewer than 8 of them or fewer than a fraction ``min_off_plane``: a planar scene or a
-    pure rotation, where F is not determined. A dominant plane with enough parallax off it is not degenerate."""
+    pure rotation, where F is not determined. A dominant plane with enough parallax off it is not
+    degenerate."""
     from kornia.geometry.ransac import RANSAC
 
     n = pts1.shape[0]
@@ -330,9 +346,17 @@ def _sample_minimal_sets(num_points: int, count: int, generator: torch.Generator
     return torch.multinomial(weights, 8, replacement=False, generator=generator)  # countx8
 
 
-def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ransac", threshold: float = 1.0,
-                       confidence: float = 0.999, max_iterations: int = 5000, batch_size: int = 64,
-                       seed: int = 0, on_planar: str = "flag") -> FundamentalEstimate:
+def fundamental_robust(
+    pts1: torch.Tensor,
+    pts2: torch.Tensor,
+    method: str = "ransac",
+    threshold: float = 1.0,
+    confidence: float = 0.999,
+    max_iterations: int = 5000,
+    batch_size: int = 64,
+    seed: int = 0,
+    on_planar: str = "flag",
+) -> FundamentalEstimate:
     """Robust F by RANSAC or LMedS over eight-point hypotheses, scored with the Sampson distance.
 
     Hypotheses are drawn ``batch_size`` at a time and solved and scored as one batched tensor computation.
@@ -347,8 +371,8 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
         threshold: RANSAC inlier threshold in px (Sampson distance).
         seed: the random sampling is a pure function of it.
         on_planar: what to do when one homography explains nearly all inliers (planar scene, pure rotation;
-            see :func:`homography_explains_matches`): ``"flag"`` sets ``planar=True`` in the result, ``"raise"``
-            raises DegenerateGeometryError, ``"ignore"`` skips the test.
+            see :func:`homography_explains_matches`): ``"flag"`` sets ``planar=True`` in the result,
+            ``"raise"`` raises DegenerateGeometryError, ``"ignore"`` skips the test.
 
     Returns:
         :class:`FundamentalEstimate` (F :math:`(3, 3)` in the input dtype, inliers :math:`(N,)` bool).
@@ -356,8 +380,10 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
     check_points(pts1, "pts1", 2, min_count=8)
     check_points(pts2, "pts2", 2, min_count=8)
     if pts1.dim() != 2 or pts1.shape != pts2.shape:
-        raise StereoInputError(f"pts1, pts2: expected two (N, 2) tensors of equal shape, got "
-                               f"{tuple(pts1.shape)} and {tuple(pts2.shape)}")
+        raise StereoInputError(
+            f"pts1, pts2: expected two (N, 2) tensors of equal shape, got "
+            f"{tuple(pts1.shape)} and {tuple(pts2.shape)}"
+        )
     if method not in ("ransac", "lmeds"):
         raise ValueError(f"method: expected 'ransac' or 'lmeds', got {method!r}")
     if on_planar not in ("flag", "raise", "ignore"):
@@ -390,7 +416,9 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
                 needed = min(max_iterations, _ransac_iterations(w, confidence))
         done += count
     if best_F is None:
-        raise DegenerateGeometryError("pts1, pts2: every sample was degenerate; the matches do not determine F")
+        raise DegenerateGeometryError(
+            "pts1, pts2: every sample was degenerate; the matches do not determine F"
+        )
     if method == "lmeds":
         sigma = 1.4826 * (1 + 5 / max(n - 8, 1)) * math.sqrt(max(best_score, 0.0))
         threshold = max(2.5 * sigma, 1e-6)
@@ -406,14 +434,18 @@ def fundamental_robust(pts1: torch.Tensor, pts2: torch.Tensor, method: str = "ra
         if not changed:
             break
     if int(inliers.sum()) < 8:
-        raise DegenerateGeometryError(f"pts1, pts2: only {int(inliers.sum())} of {n} matches fit one F "
-                                      f"(need 8); too many outliers or threshold {threshold:.3g} px too small")
-    planar = on_planar != "ignore" and homography_explains_matches(p1[inliers], p2[inliers],
-                                                                   threshold=3 * max(threshold, 1.0))
+        raise DegenerateGeometryError(
+            f"pts1, pts2: only {int(inliers.sum())} of {n} matches fit one F "
+            f"(need 8); too many outliers or threshold {threshold:.3g} px too small"
+        )
+    planar = on_planar != "ignore" and homography_explains_matches(
+        p1[inliers], p2[inliers], threshold=3 * max(threshold, 1.0)
+    )
     if planar and on_planar == "raise":
         raise DegenerateGeometryError(
             "pts1, pts2: a single homography explains the matches (planar scene or pure rotation without "
-            "translation), so F is not determined; pass on_planar='flag' to get an arbitrary F anyway")
+            "translation), so F is not determined; pass on_planar='flag' to get an arbitrary F anyway"
+        )
     return FundamentalEstimate(best_F.to(pts1.dtype), inliers, planar)
 
 

@@ -34,20 +34,27 @@ def _dehomogenize(X_h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return X_h[..., :3] / w_safe, finite[..., 0]
 
 
-def _dlt(P1: torch.Tensor, P2: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _dlt(
+    P1: torch.Tensor, P2: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     P1, P2 = P1.unsqueeze(-3), P2.unsqueeze(-3)  # *x1x3x4
-    rows = torch.stack([
-        pts1[..., 0:1] * P1[..., 2, :] - P1[..., 0, :],
-        pts1[..., 1:2] * P1[..., 2, :] - P1[..., 1, :],
-        pts2[..., 0:1] * P2[..., 2, :] - P2[..., 0, :],
-        pts2[..., 1:2] * P2[..., 2, :] - P2[..., 1, :],
-    ], dim=-2)  # *xNx4x4
+    rows = torch.stack(
+        [
+            pts1[..., 0:1] * P1[..., 2, :] - P1[..., 0, :],
+            pts1[..., 1:2] * P1[..., 2, :] - P1[..., 1, :],
+            pts2[..., 0:1] * P2[..., 2, :] - P2[..., 0, :],
+            pts2[..., 1:2] * P2[..., 2, :] - P2[..., 1, :],
+        ],
+        dim=-2,
+    )  # *xNx4x4
     rows = rows / torch.linalg.vector_norm(rows, dim=-1, keepdim=True).clamp_min(1e-300)  # equilibrate rows
     _, _, Vh = torch.linalg.svd(rows)
     return _dehomogenize(Vh[..., -1, :])
 
 
-def triangulate_dlt(P1: torch.Tensor, P2: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor) -> torch.Tensor:
+def triangulate_dlt(
+    P1: torch.Tensor, P2: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor
+) -> torch.Tensor:
     """Linear triangulation: the null vector (SVD) of the 4 x 4 system ``x P^3 - P^1, y P^3 - P^2`` per match.
 
     Args:
@@ -79,8 +86,14 @@ def _midpoint(pts1, pts2, K1, K2, R, t) -> tuple[torch.Tensor, torch.Tensor]:
     return X, ok
 
 
-def triangulate_midpoint(pts1: torch.Tensor, pts2: torch.Tensor, K1: torch.Tensor, K2: torch.Tensor,
-                         R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+def triangulate_midpoint(
+    pts1: torch.Tensor,
+    pts2: torch.Tensor,
+    K1: torch.Tensor,
+    K2: torch.Tensor,
+    R: torch.Tensor,
+    t: torch.Tensor,
+) -> torch.Tensor:
     """Midpoint of the shortest segment between the two viewing rays (left camera frame).
 
     Args:
@@ -127,7 +140,9 @@ class Triangulation(NamedTuple):
     valid: torch.Tensor
 
 
-def triangulate(pts1: torch.Tensor, pts2: torch.Tensor, calib: Calibration, method: str = "dlt") -> Triangulation:
+def triangulate(
+    pts1: torch.Tensor, pts2: torch.Tensor, calib: Calibration, method: str = "dlt"
+) -> Triangulation:
     """Triangulate matches of a calibrated rig (lens distortion removed first when ``calib`` has it).
 
     Args:
@@ -143,7 +158,9 @@ def triangulate(pts1: torch.Tensor, pts2: torch.Tensor, calib: Calibration, meth
     check_points(pts1, "pts1", 2)
     check_points(pts2, "pts2", 2)
     if pts1.shape != pts2.shape:
-        raise StereoInputError(f"pts2: expected the same shape as pts1 {tuple(pts1.shape)}, got {tuple(pts2.shape)}")
+        raise StereoInputError(
+            f"pts2: expected the same shape as pts1 {tuple(pts1.shape)}, got {tuple(pts2.shape)}"
+        )
     if calib.baseline == 0:
         raise StereoInputError("calib: the baseline |t| is zero (pure rotation); nothing can be triangulated")
     dt, dev = pts1.dtype, pts1.device

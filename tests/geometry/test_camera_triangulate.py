@@ -26,7 +26,9 @@ from stereonet.types import Calibration
 @pytest.mark.parametrize("batch", [(), (2,), (2, 3)])
 def test_projection_round_trip_shapes(batch):
     calib = random_rig(0, distortion=True)
-    X = torch.rand(*batch, 30, 3, dtype=torch.float64) * torch.tensor([2.0, 2.0, 4.0]) + torch.tensor([-1, -1, 2.0])
+    X = torch.rand(*batch, 30, 3, dtype=torch.float64) * torch.tensor([2.0, 2.0, 4.0]) + torch.tensor(
+        [-1, -1, 2.0]
+    )
     K, R, t = calib.K2.expand(*batch, 3, 3), calib.R.expand(*batch, 3, 3), calib.t.expand(*batch, 3)
     dist = calib.dist2.expand(*batch, 5)
     uv, z = project_points(X, K, R, t, dist=dist, return_depth=True)
@@ -47,7 +49,9 @@ def test_projection_matches_opencv():
     # cv2.undistortPoints(ref, K2, dist2, P=K2) (OpenCV iterates 5 times, we iterate 20)
     _, _, seen = random_correspondences(calib, 50, 1)
     ideal = undistort_pixels(seen, calib.K2, calib.dist2)
-    ref_ideal = cv2.undistortPoints(seen.numpy()[:, None], calib.K2.numpy(), calib.dist2.numpy(), P=calib.K2.numpy())
+    ref_ideal = cv2.undistortPoints(
+        seen.numpy()[:, None], calib.K2.numpy(), calib.dist2.numpy(), P=calib.K2.numpy()
+    )
     assert np.abs(ideal.numpy() - ref_ideal[:, 0]).max() < 1e-3
     assert torch.allclose(distort_pixels(ideal, calib.K2, calib.dist2), seen, atol=1e-8)
 
@@ -104,7 +108,9 @@ def test_triangulation_against_opencv():
     ref = torch.from_numpy((Xh[:3] / Xh[3]).T)
     # OpenCV's DLT rows are not equilibrated, so the noisy solutions differ slightly; noise-free they agree
     assert float(((ours - ref).norm(dim=-1) / ref[:, 2]).max()) < 1e-3
-    assert float(reprojection_error(ours, P2, p2).mean()) <= float(reprojection_error(ref, P2, p2).mean()) * 1.05
+    assert (
+        float(reprojection_error(ours, P2, p2).mean()) <= float(reprojection_error(ref, P2, p2).mean()) * 1.05
+    )
 
 
 def test_parallel_rays_are_flagged_not_nan():
@@ -116,7 +122,9 @@ def test_parallel_rays_are_flagged_not_nan():
         assert bool(torch.isfinite(tri.points).all()) and bool(torch.isfinite(tri.reprojection_error).all())
         assert not bool(tri.valid.any())
     with pytest.raises(StereoInputError, match="pure rotation"):
-        triangulate(p, p, Calibration(K, K, random_rotation(3, torch.Generator().manual_seed(0)), torch.zeros(3)))
+        triangulate(
+            p, p, Calibration(K, K, random_rotation(3, torch.Generator().manual_seed(0)), torch.zeros(3))
+        )
 
 
 def test_gradcheck_triangulation():
@@ -126,5 +134,6 @@ def test_gradcheck_triangulation():
     p1, p2 = p1.clone().requires_grad_(), (p2 + 0.2).requires_grad_()
     assert torch.autograd.gradcheck(lambda a, b: triangulate_dlt(P1, P2, a, b), (p1, p2), eps=1e-6, atol=1e-6)
     K1, K2 = calib.K1.clone().requires_grad_(), calib.K2
-    assert torch.autograd.gradcheck(lambda a, b, k: triangulate_midpoint(a, b, k, K2, calib.R, calib.t),
-                                    (p1, p2, K1), eps=1e-6, atol=1e-6)
+    assert torch.autograd.gradcheck(
+        lambda a, b, k: triangulate_midpoint(a, b, k, K2, calib.R, calib.t), (p1, p2, K1), eps=1e-6, atol=1e-6
+    )

@@ -48,8 +48,19 @@ def test_rectified_rendered_images_agree_at_correspondences(one_thread):
     the rectified ground-truth correspondences (which share a row)."""
     import data_gen
 
-    item = data_gen.render_pair(0, 3, difficulty=1, height=120, width=160, rectified=False, supersample=1,
-                                noise=False, photometric=False, blur=False, specular=False)
+    item = data_gen.render_pair(
+        0,
+        3,
+        difficulty=1,
+        height=120,
+        width=160,
+        rectified=False,
+        supersample=1,
+        noise=False,
+        photometric=False,
+        blur=False,
+        specular=False,
+    )
     left, right = item["left"][None].double(), item["right"][None].double()
     rect = rectify_calibrated(left, right, item["calib"])
     ok = item["valid"][0] & ~item["occlusion"][0]

@@ -71,13 +71,16 @@ def test_points_are_back_projections_with_colours(tmp_path):
     path = tmp_path / "cloud.ply"
     write_ply(path, points, colors)
     back_points, back_colors = read_ply(path)
-    assert np.allclose(np.asarray(back_points), points.numpy()) and np.array_equal(np.asarray(back_colors),
-                                                                                   colors.numpy())
+    assert np.allclose(np.asarray(back_points), points.numpy()) and np.array_equal(
+        np.asarray(back_colors), colors.numpy()
+    )
 
 
 def test_q_reprojection_matches_opencv():
     f, cx, cy, B, doffs = 500.0, 31.5, 23.5, 0.12, 2.5
-    Q = torch.tensor([[1.0, 0, 0, -cx], [0, 1, 0, -cy], [0, 0, 0, f], [0, 0, 1 / B, doffs / B]], dtype=torch.float64)
+    Q = torch.tensor(
+        [[1.0, 0, 0, -cx], [0, 1, 0, -cy], [0, 0, 0, f], [0, 0, 1 / B, doffs / B]], dtype=torch.float64
+    )
     d = _disparity()
     ours = reproject_disparity(d, Q)
     # reference: cv2.reprojectImageTo3D(disparity, Q)
@@ -91,8 +94,9 @@ def test_gradcheck_depth():
     d = _disparity()[..., :4, :5].clone().requires_grad_()
     focal = torch.tensor(500.0, dtype=torch.float64, requires_grad=True)
     baseline = torch.tensor(0.12, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda x, f, b: disparity_to_depth(x, focal=f, baseline=b, doffs=2.5),
-                                    (d, focal, baseline))
+    assert torch.autograd.gradcheck(
+        lambda x, f, b: disparity_to_depth(x, focal=f, baseline=b, doffs=2.5), (d, focal, baseline)
+    )
     z = disparity_to_depth(d.detach(), CALIB).requires_grad_()
     assert torch.autograd.gradcheck(lambda x: depth_to_disparity(x, CALIB), (z,))
     assert torch.autograd.gradcheck(lambda x: disparity_to_points(x, None, CALIB)[0], (d,))

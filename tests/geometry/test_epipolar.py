@@ -94,7 +94,9 @@ def test_sampson_matches_kornia():
 
     p1, p2 = torch.rand(2, 30, 2, dtype=torch.float64).unbind(0)
     F = torch.randn(3, 3, dtype=torch.float64)
-    assert torch.allclose(sampson_distance(p1 * 500, p2 * 500, F), sampson_epipolar_distance(p1 * 500, p2 * 500, F))
+    assert torch.allclose(
+        sampson_distance(p1 * 500, p2 * 500, F), sampson_epipolar_distance(p1 * 500, p2 * 500, F)
+    )
 
 
 def test_degrees_of_freedom_by_jacobian_rank():

@@ -79,5 +79,7 @@ def test_uncalibrated_rectification_of_a_real_pair(shared_data):
     # reference: cv2.stereoRectifyUncalibrated(inlier matches, F, (w, h)) on the same matches and F
     p1, p2 = (m.numpy()[rect.inliers.numpy()] for m in rect.matches)
     ok, H1, H2 = cv2.stereoRectifyUncalibrated(p1, p2, rect.F.numpy(), (w, h))
-    dy_cv = (apply_homography(torch.from_numpy(H1), gt1)[:, 1] - apply_homography(torch.from_numpy(H2), gt2)[:, 1])
+    dy_cv = (
+        apply_homography(torch.from_numpy(H1), gt1)[:, 1] - apply_homography(torch.from_numpy(H2), gt2)[:, 1]
+    )
     assert ok and float(dy_cv.abs().median()) < 1.0

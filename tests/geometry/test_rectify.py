@@ -42,14 +42,15 @@ def _row_errors(rect, p1, p2) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def test_calibrated_rectification_aligns_rows_on_random_rigs(one_thread):
-    """|dy| of exact correspondences after rectification, ours vs cv2.stereoRectify on the same 16 rigs (rotations
-    up to 8 degrees, half of them with lens distortion); the 50-rig data_gen run is in test_data_gen_rigs.py."""
+    """|dy| of exact correspondences after rectification, ours vs cv2.stereoRectify on the same 16 rigs
+    (rotations up to 8 degrees, half with lens distortion); the 50-rig data_gen run: test_data_gen_rigs.py."""
     stats = {"kornia": [], "opencv": []}
     for seed in range(16):
         calib = random_rig(seed, image_size=SIZE, distortion=seed % 2 == 1)
         X, p1, p2 = random_correspondences(calib, 100, seed)
         for method in stats:
-            # method="opencv" runs cv2.stereoRectify(K1, D1, K2, D2, size, R, T, flags=CALIB_ZERO_DISPARITY, alpha)
+            # method="opencv" runs
+            # cv2.stereoRectify(K1, D1, K2, D2, size, R, T, flags=CALIB_ZERO_DISPARITY, alpha=alpha)
             rect = stereo_rectify(calib, method=method)
             dy, d = _row_errors(rect, p1, p2)
             stats[method].append(dy)
@@ -60,7 +61,11 @@ def test_calibrated_rectification_aligns_rows_on_random_rigs(one_thread):
             assert float(((z - z_true) / z_true).abs().max()) < 1e-6
     for method, dys in stats.items():
         dy = torch.cat(dys)
-        assert float(dy.median()) < 0.1 and float(dy.max()) < 0.5, (method, float(dy.median()), float(dy.max()))
+        assert float(dy.median()) < 0.1 and float(dy.max()) < 0.5, (
+            method,
+            float(dy.median()),
+            float(dy.max()),
+        )
     # ours is exact up to the undistortion iteration
     assert float(torch.cat(stats["kornia"]).max()) < 1e-6
 
@@ -83,11 +88,13 @@ def test_rectifying_rotation_layout():
 
 @pytest.mark.parametrize("distortion", [False, True])
 def test_rectified_images_sample_their_maps(distortion):
-    """The warped image of a linear ramp reads, at every rectified pixel, the source position the map names; and
-    the map is the inverse of rectify_points."""
+    """The warped image of a linear ramp reads, at every rectified pixel, the source position the map names;
+    and the map is the inverse of rectify_points."""
     calib = random_rig(7, image_size=SMALL, distortion=distortion)
     w, h = SMALL
-    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij"
+    )
     ramp = torch.stack([xs / w, ys / h, torch.zeros_like(xs)])[None]  # 1x3xHxW, linear => bilinear is exact
     rect = rectify_calibrated(ramp, ramp, calib)
     for img, src, view in ((rect.left, rect.maps[0], "left"), (rect.right, rect.maps[1], "right")):
@@ -96,8 +103,12 @@ def test_rectified_images_sample_their_maps(distortion):
         assert torch.allclose(img[0, 0][inside], src[..., 0][inside] / w, atol=1e-9)
         assert torch.allclose(img[0, 1][inside], src[..., 1][inside] / h, atol=1e-9)
         hh, ww = src.shape[:2]
-        grid = torch.stack(torch.meshgrid(torch.arange(hh, dtype=torch.float64), torch.arange(ww, dtype=torch.float64),
-                                          indexing="ij")[::-1], -1)
+        grid = torch.stack(
+            torch.meshgrid(
+                torch.arange(hh, dtype=torch.float64), torch.arange(ww, dtype=torch.float64), indexing="ij"
+            )[::-1],
+            -1,
+        )
         back = rectify_points(src[inside], rect, view)
         assert float((back - grid[inside]).abs().max()) < 1e-6
 
@@ -106,9 +117,13 @@ def test_maps_match_opencv_init_undistort_rectify_map():
     calib = random_rig(5, image_size=SIZE, distortion=True)
     img = _blank(calib)
     rect = rectify_calibrated(img, img, calib, method="opencv")
-    for K, dist, R_r, P, ours in ((calib.K1, calib.dist1, rect.R1, rect.P1, rect.maps[0]),
-                                  (calib.K2, calib.dist2, rect.R2, rect.P2, rect.maps[1])):
-        mx, my = cv2.initUndistortRectifyMap(K.numpy(), dist.numpy(), R_r.numpy(), P.numpy(), SIZE, cv2.CV_32FC1)
+    for K, dist, R_r, P, ours in (
+        (calib.K1, calib.dist1, rect.R1, rect.P1, rect.maps[0]),
+        (calib.K2, calib.dist2, rect.R2, rect.P2, rect.maps[1]),
+    ):
+        mx, my = cv2.initUndistortRectifyMap(
+            K.numpy(), dist.numpy(), R_r.numpy(), P.numpy(), SIZE, cv2.CV_32FC1
+        )
         inside = (mx >= 0) & (mx <= SIZE[0] - 1) & (my >= 0) & (my <= SIZE[1] - 1)
         err = np.abs(ours.numpy() - np.stack([mx, my], -1))[inside]
         assert err.max() < 1e-2  # float32 maps
@@ -166,8 +181,9 @@ def test_opencv_calibration_file_and_q(tmp_path):
 def test_gradcheck_rectifying_warp():
     g = torch.Generator().manual_seed(0)
     img = torch.rand(1, 1, 6, 7, dtype=torch.float64, generator=g, requires_grad=True)
-    H = torch.tensor([[1.02, 0.03, 0.4], [-0.02, 0.98, 0.3], [1e-3, -2e-3, 1.0]], dtype=torch.float64,
-                     requires_grad=True)
+    H = torch.tensor(
+        [[1.02, 0.03, 0.4], [-0.02, 0.98, 0.3], [1e-3, -2e-3, 1.0]], dtype=torch.float64, requires_grad=True
+    )
     assert torch.autograd.gradcheck(lambda i, m: warp_image(i, m, (6, 7)), (img, H), eps=1e-6, atol=1e-5)
     # and through the whole calibrated rectification with respect to the images
     K = torch.tensor([[8.0, 0, 3.5], [0, 8.0, 2.5], [0, 0, 1]], dtype=torch.float64)
@@ -175,6 +191,7 @@ def test_gradcheck_rectifying_warp():
 
     calib = Calibration(K, K, random_rotation(3, g), torch.tensor([-1.0, 0.05, 0.02]), image_size=(7, 6))
     right = torch.rand(1, 1, 6, 7, dtype=torch.float64, generator=g, requires_grad=True)
+
     def both(a, b):
         rect = rectify_calibrated(a, b, calib)
         return rect.left, rect.right
@@ -190,7 +207,9 @@ def test_calibrated_bad_input():
     with pytest.raises(DegenerateGeometryError, match="pure rotation"):
         rectify_calibrated(img, img, Calibration(K1, K2, calib.R, torch.zeros(3), image_size=SIZE))
     with pytest.raises(DegenerateGeometryError, match="optical axis"):
-        rectify_calibrated(img, img, Calibration(K1, K2, eye, torch.tensor([0.0, 0.0, -1.0]), image_size=SIZE))
+        rectify_calibrated(
+            img, img, Calibration(K1, K2, eye, torch.tensor([0.0, 0.0, -1.0]), image_size=SIZE)
+        )
     with pytest.raises(StereoInputError, match="calib.image_size"):
         rectify_calibrated(torch.zeros(1, 1, 100, 100), torch.zeros(1, 1, 100, 100), calib)
     with pytest.raises(StereoInputError, match="alpha"):
@@ -203,7 +222,9 @@ def test_calibrated_bad_input():
         Calibration(torch.zeros(3, 3), K2, eye, torch.tensor([-1.0, 0, 0]))
 
 
-def _noisy_matches(calib: Calibration, seed: int, count: int = 200, sigma: float = 0.5, outliers: float = 0.2):
+def _noisy_matches(
+    calib: Calibration, seed: int, count: int = 200, sigma: float = 0.5, outliers: float = 0.2
+):
     X, p1, p2 = random_correspondences(calib, count, seed)
     g = torch.Generator().manual_seed(seed)
     n1 = p1 + sigma * torch.randn(p1.shape, generator=g, dtype=torch.float64)
@@ -254,12 +275,14 @@ def test_uncalibrated_bad_input():
     forward = Calibration(calib.K1, calib.K2, eye, torch.tensor([0.01, 0.0, -0.3]), image_size=SIZE)
     _, q1, q2 = random_correspondences(forward, 40, 2)
     with pytest.raises(DegenerateGeometryError, match="epipole lies inside"):
-        stereo_rectify_uncalibrated(q1, q2, SIZE, F=fundamental_from_pose(forward.K1, forward.K2, eye, forward.t))
+        stereo_rectify_uncalibrated(
+            q1, q2, SIZE, F=fundamental_from_pose(forward.K1, forward.K2, eye, forward.t)
+        )
 
 
 def test_hartley_shape_matching_keeps_rows_and_local_shape():
-    """H_A never changes rows, so both choices align rows equally; "shape" gives the left warp the right warp's
-    x-derivatives at the image centre (no added shear), "disparity" is Hartley's least-squares choice."""
+    """H_A never changes rows, so both choices align rows equally; "shape" gives the left warp the right
+    warp's x-derivatives at the image centre (no added shear); "disparity" is Hartley's least squares."""
     calib = random_rig(13, image_size=SIZE)
     _, p1, p2 = random_correspondences(calib, 150, 13)
     F = fundamental_from_pose(calib.K1, calib.K2, calib.R, calib.t)
