@@ -135,6 +135,20 @@ def _evaluate(case: RigCase, matches: tuple[torch.Tensor, torch.Tensor], seed: i
     return out
 
 
+def _row(rig: str, method: str, dy: torch.Tensor, seconds: float, **extra) -> dict:
+    """One result row: row-error statistics of one method on one rig (``pooled`` keeps every |dy|)."""
+    return dict(
+        rig=rig,
+        method=method,
+        median_dy=float(dy.median()),
+        p95_dy=float(torch.quantile(dy, 0.95)),
+        max_dy=float(dy.max()),
+        seconds=seconds,
+        pooled=dy,
+        **extra,
+    )
+
+
 def rig_benchmark(
     rigs: int = 50,
     seed: int = 0,
@@ -157,19 +171,7 @@ def rig_benchmark(
         tri_err = float(((tri.points[:, 2] - case.points[:, 2]).abs() / case.points[:, 2]).max())
         distorted = case.calib.dist1 is not None and bool((case.calib.dist1.abs() > 0).any())
         for method, (dy, sec) in _evaluate(case, matches, index).items():
-            rows.append(
-                dict(
-                    rig=case.name,
-                    method=method,
-                    distorted=distorted,
-                    median_dy=float(dy.median()),
-                    p95_dy=float(torch.quantile(dy, 0.95)),
-                    max_dy=float(dy.max()),
-                    seconds=sec,
-                    triangulation_rel_err=tri_err,
-                    pooled=dy,
-                )
-            )
+            rows.append(_row(case.name, method, dy, sec, distorted=distorted, triangulation_rel_err=tri_err))
     return rows
 
 
@@ -234,17 +236,6 @@ def rendered_benchmark(
         left, right = item["left"][None], item["right"][None]
         matches = match_sift(left, right)
         for method, (dy, sec) in _evaluate(case, matches, index).items():
-            rows.append(
-                dict(
-                    rig=case.name,
-                    method=method,
-                    median_dy=float(dy.median()),
-                    p95_dy=float(torch.quantile(dy, 0.95)),
-                    max_dy=float(dy.max()),
-                    seconds=sec,
-                    pooled=dy,
-                    matches=int(len(matches[0])),
-                )
-            )
+            rows.append(_row(case.name, method, dy, sec, matches=int(len(matches[0]))))
     rel = torch.cat(rel_errs)
     return rows, {"max_rel_depth_err": float(rel.max()), "median_rel_depth_err": float(rel.median())}

@@ -68,6 +68,13 @@ def _check_map(x: object, name: str, valid: torch.Tensor | None) -> torch.Tensor
     return x
 
 
+def _reciprocal(x: torch.Tensor, numerator, valid: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(``numerator / x`` where ``x > 0`` and valid, else 0; that mask), with no inf/NaN in value or gradient."""
+    has = x > 0 if valid is None else (x > 0) & valid
+    safe = torch.where(has, x, torch.ones_like(x))
+    return torch.where(has, numerator / safe, torch.zeros_like(x)), has
+
+
 def disparity_to_depth(
     disparity: torch.Tensor,
     calib: Calibration | None = None,
@@ -91,10 +98,8 @@ def disparity_to_depth(
     """
     _check_map(disparity, "disparity", valid)
     f, b, off = _rig_parameters(calib, focal, baseline, doffs)
-    denom = disparity + off
-    has_depth = denom > 0 if valid is None else (denom > 0) & valid
-    safe = torch.where(has_depth, denom, torch.ones_like(denom))
-    return torch.where(has_depth, f * b / safe, torch.zeros_like(denom))
+    depth, _ = _reciprocal(disparity + off, f * b, valid)
+    return depth
 
 
 def depth_to_disparity(
@@ -116,9 +121,8 @@ def depth_to_disparity(
     """
     _check_map(depth, "depth", valid)
     f, b, off = _rig_parameters(calib, focal, baseline, doffs)
-    has = depth > 0 if valid is None else (depth > 0) & valid
-    safe = torch.where(has, depth, torch.ones_like(depth))
-    return torch.where(has, f * b / safe - off, torch.zeros_like(depth))
+    inverse, has = _reciprocal(depth, f * b, valid)
+    return torch.where(has, inverse - off, torch.zeros_like(depth))
 
 
 def disparity_to_points(
