@@ -266,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scans", type=int, default=4, help="align: number of range scans")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    torch.set_num_threads(min(2, torch.get_num_threads()))
+    torch.set_num_threads(1)  # small tensors: thread hand-offs cost more than they save on a busy CPU
     if a.demo == "structured-light":
         w = a.width or 320
         m = run_structured_light(a.out, a.scene or "textureless", a.seed, w, w * 3 // 4, a.method)
