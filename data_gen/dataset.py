@@ -25,7 +25,7 @@ class SyntheticStereo(Dataset):
     Args:
         count: number of pairs (>= 1); seed: dataset seed; difficulty, height, width, rectified, supersample:
             as :func:`data_gen.render_pair`; ``**render_options``: its keyword-only options (num_objects,
-            max_disp, baseline, distortion, noise, photometric, blur, specular).
+            max_disp, baseline, distortion, noise, photometric, blur, specular, occlusion_right).
     """
 
     def __init__(self, count: int, seed: int = 0, difficulty: int = 2, height: int = 256, width: int = 512,
@@ -33,7 +33,7 @@ class SyntheticStereo(Dataset):
         if isinstance(count, bool) or not isinstance(count, int) or count < 1:
             raise ValueError(f"count: expected an integer >= 1, got {count!r}")
         unknown = set(render_options) - {"num_objects", "max_disp", "baseline", "distortion", "noise",
-                                         "photometric", "blur", "specular"}
+                                         "photometric", "blur", "specular", "occlusion_right"}
         if unknown:
             raise TypeError(f"render_options: unknown option(s) {sorted(unknown)}")
         _, _, difficulty, height, width, supersample, max_disp = check_render_args(
@@ -57,19 +57,19 @@ class SyntheticStereo(Dataset):
             raise IndexError(f"index: expected 0 <= index < {self.count}, got {index}")
         pair = render_pair(self.seed, index, self.difficulty, self.height, self.width, self.rectified,
                            self.supersample, **self.render_options)
-        item = {k: pair[k] for k in ITEM_TENSOR_KEYS}
+        item = {k: pair[k] for k in ITEM_TENSOR_KEYS + ("occlusion_right",) if k in pair}
         item.update(calib=pair["calib"], name=pair["name"], max_disp=pair["max_disp"], difficulty=self.difficulty)
         return item
 
 
 def collate(batch: Sequence[dict]) -> dict:
-    """DataLoader collate for item dicts: tensors of equal shape are stacked, ints become a long tensor only
-    for ``max_disp``-like scalars when equal... everything else (Calibration, str, mixed shapes) a list."""
+    """DataLoader collate for item dicts: tensors of equal shape are stacked into a batch; everything else
+    (Calibration, str, int, tensors of differing shapes, keys missing from some items) becomes a list."""
     if not batch:
         raise ValueError("batch: expected at least one item, got an empty sequence")
     out: dict = {}
     for key in batch[0]:
-        values = [item[key] for item in batch]
+        values = [item.get(key) for item in batch]
         if all(isinstance(v, torch.Tensor) for v in values) and len({tuple(v.shape) for v in values}) == 1:
             out[key] = torch.stack(values)
         else:

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import torch
 
-from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, shade, visible_from
+from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, specular_radiance, visible_from
 from data_gen.scene import (
     DIFFICULTY,
     Rig,
@@ -110,7 +110,8 @@ def calibration_of(rig: Rig, max_disp: int):
                        dist1=rig.left.dist, dist2=rig.right.dist, doffs=0.0, ndisp=int(max_disp))
 
 
-def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, torch.Tensor]:
+def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_right: bool = False
+                  ) -> dict[str, torch.Tensor]:
     """Disparities, correspondences, occlusion and specular masks from the centre-ray geometry."""
     cam_l, cam_r = rig.left, rig.right
     w, h = cam_l.size
@@ -121,7 +122,7 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, 
     pts_l = left["points"].double()
     corr, z_r = cam_r.project(pts_l)  # HWx2 right pixel of each left pixel's surface point
     disp = xs.reshape(-1) - corr[:, 0]
-    visible = visible_from(scene, cam_r, pts_l) & hit_l
+    visible = visible_from(scene, cam_r, left["points"], projected=(corr.float(), z_r.float())) & hit_l
     valid = hit_l & (z_r > 0)
     if rig.rectified:
         valid &= disp > 0
@@ -130,16 +131,21 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, 
     corr_l, z_l = cam_l.project(right["points"].double())
     disp_r = corr_l[:, 0] - xs.reshape(-1)
     valid_r = (ids_r >= 0) & (z_l > 0)
+    if rig.rectified:
+        valid_r &= disp_r > 0
     # specular mask: shiny in the left view, or at the same surface point seen from the right camera
-    albedo = torch.ones_like(pts_l)
-    _, spec_r_at_l = shade(scene, ids_l, pts_l, left["normals"].double(), albedo, cam_r.center)
+    spec_r_at_l = specular_radiance(scene, ids_l, left["points"], left["normals"], cam_r.center)
     specular = (left["specular"].reshape(-1) > SPECULAR_MASK_THRESHOLD) | (spec_r_at_l > SPECULAR_MASK_THRESHOLD)
 
     def img(x, dtype=torch.float32):
         return x.reshape(1, h, w).to(dtype)
 
     zero = torch.zeros((), dtype=torch.float64)
-    return dict(
+    extra = {}
+    if occlusion_right:  # right pixels whose surface point the left camera does not see
+        seen_l = visible_from(scene, cam_l, right["points"], projected=(corr_l.float(), z_l.float()))
+        extra["occlusion_right"] = img(~seen_l & valid_r, torch.bool)
+    return extra | dict(
         disparity=img(torch.where(valid, disp, zero)), valid=img(valid, torch.bool),
         disparity_right=img(torch.where(valid_r, disp_r, zero)), valid_right=img(valid_r, torch.bool),
         occlusion=img(~visible & valid, torch.bool), depth=img(torch.where(hit_l, left["depth"].reshape(-1).double(), zero)),
@@ -151,7 +157,8 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict) -> dict[str, 
 def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, width: int = 512,
                 rectified: bool = True, supersample: int = 2, *, num_objects: int | None = None,
                 max_disp: int | None = None, baseline: float | None = None, distortion: bool | None = None,
-                noise: bool = True, photometric: bool = True, blur: bool = True, specular: bool = True) -> dict:
+                noise: bool = True, photometric: bool = True, blur: bool = True, specular: bool = True,
+                occlusion_right: bool = False) -> dict:
     """Render one synthetic stereo pair with exact ground truth; a pure function of its arguments.
 
     Args:
@@ -163,6 +170,8 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
         max_disp: disparity range (default: the difficulty's, scaled with width); must be < width / 2.
         baseline: in mm (default random in [60, 300]); distortion: unrectified rigs only (None = random).
         noise, photometric, blur, specular: switch the corresponding effects off (the scene is unchanged).
+        occlusion_right: also return ``occlusion_right`` :math:`(1, H, W)` bool (right pixels not seen by the
+            left camera; one more visibility pass, ~10% of the time).
 
     Returns:
         dict with ``left``, ``right`` float32 :math:`(3, H, W)` in [0, 1]; ``disparity``, ``disparity_right``,
@@ -180,18 +189,18 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
         seed, index, difficulty, height, width, supersample, max_disp, baseline, num_objects)
     with single_thread():
         return _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp,
-                            baseline, distortion, noise, photometric, blur, specular)
+                            baseline, distortion, noise, photometric, blur, specular, occlusion_right)
 
 
 def _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp, baseline,
-                 distortion, noise, photometric, blur, specular) -> dict:
+                 distortion, noise, photometric, blur, specular, occlusion_right) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
     rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)
     level = DIFFICULTY[difficulty]
     response = [_photometric(rng, level), _photometric(rng, level)]
     views = [render_view(scene, cam, supersample, specular=specular) for cam in (rig.left, rig.right)]
-    gt = _ground_truth(scene, rig, views[0], views[1])
+    gt = _ground_truth(scene, rig, views[0], views[1], occlusion_right)
     if not specular:
         gt["specular"].zero_()
     images = [apply_camera_response(v["image"], r, photometric, blur, noise) for v, r in zip(views, response)]

@@ -41,6 +41,16 @@ def _face_ray(normals: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
     return torch.where(flip, -normals, normals)
 
 
+def _planar_surface(origin: np.ndarray, e1: np.ndarray, e2: np.ndarray, n: np.ndarray, points: torch.Tensor,
+                    dirs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Normals (turned towards the rays) and in-plane (u, v) of points on the plane through ``origin``."""
+    axes = torch.as_tensor(np.stack([e1, e2], axis=1), dtype=points.dtype)  # 3x2
+    uv = points @ axes - torch.as_tensor(origin @ np.stack([e1, e2], axis=1), dtype=points.dtype)
+    n_t = torch.as_tensor(n, dtype=points.dtype)
+    side = torch.where(dirs @ n_t > 0, -1.0, 1.0).to(points.dtype)
+    return side[:, None] * n_t, uv
+
+
 def _vec(a, like: torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=like.dtype)
 
@@ -84,10 +94,7 @@ class Plane(Primitive):
         return _miss_to_inf(t, torch.isfinite(t))
 
     def surface(self, points, dirs):
-        rel = points - _vec(self.origin, points)
-        uv = torch.stack([rel @ _vec(self.e1, points), rel @ _vec(self.e2, points)], dim=-1)
-        normals = _vec(self.n, points).expand_as(points)
-        return _face_ray(normals, dirs), uv
+        return _planar_surface(self.origin, self.e1, self.e2, self.n, points, dirs)
 
 
 class PlanarPatch(Primitive):
@@ -152,10 +159,7 @@ class PlanarPatch(Primitive):
         return _miss_to_inf(t, self._inside(u, v))
 
     def surface(self, points, dirs):
-        rel = points - _vec(self.centre, points)
-        uv = torch.stack([rel @ _vec(self.e1, points), rel @ _vec(self.e2, points)], dim=-1)
-        normals = _vec(self.n, points).expand_as(points)
-        return _face_ray(normals, dirs), uv
+        return _planar_surface(self.centre, self.e1, self.e2, self.n, points, dirs)
 
 
 class Sphere(Primitive):

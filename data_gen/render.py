@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from data_gen.camera import Camera, GridRays, PointRays
+from data_gen.primitives import Plane
 from data_gen.scene import Scene
 
 SPECULAR_MASK_THRESHOLD = 0.02  # specular radiance above which a pixel counts as view-dependent
@@ -68,6 +69,39 @@ def raycast_grid(scene: Scene, grid: GridRays) -> tuple[torch.Tensor, torch.Tens
     return t_best, ids, ranges
 
 
+def _sorted_hit_surface(scene: Scene, ids: torch.Tensor, t: torch.Tensor, dirs_of, origin: np.ndarray,
+                        spacing: float, with_albedo: bool) -> dict[str, torch.Tensor]:
+    """Shared core of :func:`sorted_surface`: sort hits by object id, then one contiguous slice per object.
+
+    ``dirs_of(order)`` returns the directions :math:`(N, 3)` of the hits in sorted order.
+    """
+    order = torch.argsort(ids)
+    counts = torch.bincount(ids + 1, minlength=len(scene.objects) + 1).tolist()
+    d = dirs_of(order)
+    tt = t[order]
+    miss = counts[0]
+    tt[:miss] = 0.0
+    p = torch.as_tensor(origin, dtype=d.dtype) + tt[:, None] * d
+    normals = torch.zeros_like(p)
+    uv = torch.zeros(p.shape[0], 2, dtype=p.dtype)
+    albedo = torch.zeros_like(p) if with_albedo else None
+    start = miss
+    for k, obj in enumerate(scene.objects):
+        stop = start + counts[k + 1]
+        if stop > start:
+            pk, dk = p[start:stop], d[start:stop]
+            nk, uvk = obj.surface(pk, dk)
+            normals[start:stop] = nk
+            uv[start:stop] = uvk
+            if albedo is not None:
+                albedo[start:stop] = obj.material.albedo(uvk, _footprint(tt[start:stop], nk, dk, spacing))
+        start = stop
+    out = {"order": order, "ids": ids[order], "points": p, "normals": normals, "dirs": d, "uv": uv}
+    if albedo is not None:
+        out["albedo"] = albedo
+    return out
+
+
 def sorted_surface(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Tensor,
                    with_albedo: bool = True) -> dict[str, torch.Tensor]:
     """Surface data of the hits of :func:`raycast_grid`, with the samples sorted by object id.
@@ -78,38 +112,27 @@ def sorted_surface(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Ten
     sorted, ``points``, ``normals``, ``dirs`` :math:`(N, 3)`, ``uv`` :math:`(N, 2)`, and ``albedo``
     :math:`(N, 3)` when ``with_albedo``. Misses (id -1) come first, with zeros.
     """
-    h, w = grid.shape
-    ids_flat = ids.reshape(-1)
-    order = torch.argsort(ids_flat)
-    counts = torch.bincount(ids_flat + 1, minlength=len(scene.objects) + 1).tolist()
-    rows = torch.div(order, w, rounding_mode="floor")
-    cols = order - rows * w
-    d = grid.dirs_at(rows, cols)
-    tt = t.reshape(-1)[order]
-    miss = counts[0]
-    tt[:miss] = 0.0
-    p = torch.as_tensor(grid.origin, dtype=grid.dtype) + tt[:, None] * d
-    normals = torch.zeros_like(p)
-    uv = torch.zeros(p.shape[0], 2, dtype=p.dtype)
-    albedo = torch.zeros_like(p) if with_albedo else None
+    w = grid.shape[1]
+
+    def dirs_of(order):
+        rows = torch.div(order, w, rounding_mode="floor")
+        return grid.dirs_at(rows, order - rows * w)
+
     # angular spacing of neighbouring samples (radians, at the image centre) for texture footprints
     spacing = float(abs(grid.xs_np[1] - grid.xs_np[0]) if len(grid.xs_np) > 1 else 1.0) / float(grid.camera.K[0, 0])
-    start = miss
-    for k, obj in enumerate(scene.objects):
-        stop = start + counts[k + 1]
-        if stop > start:
-            pk, dk = p[start:stop], d[start:stop]
-            nk, uvk = obj.surface(pk, dk)
-            normals[start:stop] = nk
-            uv[start:stop] = uvk
-            if albedo is not None:
-                fp = _footprint(tt[start:stop] * torch.linalg.norm(dk, dim=-1), nk, dk, spacing)
-                albedo[start:stop] = obj.material.albedo(uvk, fp)
-        start = stop
-    out = {"order": order, "ids": ids_flat[order], "points": p, "normals": normals, "dirs": d, "uv": uv}
-    if albedo is not None:
-        out["albedo"] = albedo
-    return out
+    return _sorted_hit_surface(scene, ids.reshape(-1), t.reshape(-1), dirs_of, grid.origin, spacing, with_albedo)
+
+
+def render_rays(scene: Scene, camera: Camera, x: torch.Tensor, y: torch.Tensor, spacing: float,
+                specular: bool = True, extra_light_fn: Callable | None = None) -> torch.Tensor:
+    """Radiance :math:`(N, 3)` seen by ``camera`` along the rays through pixel coordinates ``x, y`` :math:`(N,)`;
+    ``spacing``: radians between neighbouring rays (texture band limit)."""
+    dirs = _pixel_rays(camera, x, y)
+    t, ids = _first_hits(scene, PointRays(camera.center, dirs), torch.stack([x, y], -1), camera)
+    srt = _sorted_hit_surface(scene, ids, t, lambda order: dirs[order], camera.center, spacing, True)
+    rgb, _ = shade(scene, srt["ids"], srt["points"], srt["normals"], srt["albedo"], camera.center, specular,
+                   extra_light_fn)
+    return unsort(rgb, srt["order"])
 
 
 def unsort(values: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
@@ -190,11 +213,14 @@ def raycast(scene: Scene, origins: torch.Tensor, dirs: torch.Tensor, pixels: tor
     return RayHits(t, ids, points, normals, uv)
 
 
-def _footprint(dist: torch.Tensor, normals: torch.Tensor, dirs: torch.Tensor, spacing: float) -> torch.Tensor:
-    """Size on the surface (scene units) of one image sample: ``dist * spacing / cos(incidence)``."""
-    dnorm = torch.linalg.norm(dirs, dim=-1)
-    cos = (normals * dirs).sum(-1).abs() / dnorm
-    return dist * spacing / cos.clamp(min=0.05)
+def _footprint(t: torch.Tensor, normals: torch.Tensor, dirs: torch.Tensor, spacing: float) -> torch.Tensor:
+    """Size on the surface (scene units) of one image sample, ``|t d| spacing / cos(incidence)``, cos >= 0.05.
+
+    ``t``: ray parameters :math:`(N,)`; dirs :math:`(N, 3)` (any length); spacing: radians between samples.
+    """
+    dd = (dirs * dirs).sum(-1)
+    nd = (normals * dirs).sum(-1).abs()
+    return t * dd * spacing / torch.maximum(nd, 0.05 * dd.sqrt())
 
 
 def albedo_of_hits(scene: Scene, hits: RayHits, dirs: torch.Tensor, spacing: float | None = None) -> torch.Tensor:
@@ -207,21 +233,77 @@ def albedo_of_hits(scene: Scene, hits: RayHits, dirs: torch.Tensor, spacing: flo
             fp = None
             if spacing is not None:
                 d = dirs[sel]
-                fp = _footprint(hits.t[sel] * torch.linalg.norm(d, dim=-1), hits.normals[sel], d, spacing)
+                fp = _footprint(hits.t[sel], hits.normals[sel], d, spacing)
             albedo[sel] = obj.material.albedo(hits.uv[sel], fp)
     return albedo
 
 
-def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: float = 1e-4) -> torch.Tensor:
+def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: float = 1e-4,
+                 projected: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
     """Bool :math:`(N,)`: True where world ``points`` :math:`(N, 3)` are seen by ``camera``: in front of it,
-    projecting inside its image, and not hidden by a nearer surface of ``scene``."""
-    pix, z = camera.project(points)
+    projecting inside its image, and not hidden by a nearer surface of ``scene``.
+
+    Rays run from the camera centre to each point (t = 1 at the point); a hit with ``t < 1 - rel_eps``
+    hides it. Infinite planes hide a point exactly when it lies on the other side from the camera.
+    ``projected``: ``camera.project(points)`` if already computed.
+    """
+    pix, z = camera.project(points) if projected is None else projected
     w, h = camera.size
     inside = (z > 0) & (pix[:, 0] >= -0.5) & (pix[:, 0] <= w - 0.5) & (pix[:, 1] >= -0.5) & (pix[:, 1] <= h - 0.5)
-    centre = torch.as_tensor(camera.center, dtype=points.dtype)
-    rays = PointRays(camera.center, points - centre)  # the point itself is at t = 1
-    t, _ = _first_hits(scene, rays, pix, camera)
-    return inside & ~(t < 1 - rel_eps)
+    centre = camera.center
+    hidden = torch.zeros(points.shape[0], dtype=torch.bool)
+    ys_sorted, order = torch.sort(pix[:, 1].contiguous())  # objects are tested on the rows they cover
+    xs_sorted = pix[order, 0]
+    dirs_sorted = points[order] - torch.as_tensor(centre, dtype=points.dtype)
+    hidden_sorted = torch.zeros_like(hidden)
+    for obj in scene.objects:
+        if isinstance(obj, Plane):
+            side_cam = float(obj.n @ centre) - obj.k
+            side_pts = points @ torch.as_tensor(obj.n, dtype=points.dtype) - obj.k
+            hidden |= side_pts * math.copysign(1.0, side_cam) < -rel_eps * abs(side_cam)
+            continue
+        bs = obj.bounding_sphere()
+        bbox = camera.pixel_bbox(bs[0], bs[1]) if bs is not None else (-math.inf, math.inf, -math.inf, math.inf)
+        if bbox is None:
+            continue
+        x0, x1, y0, y1 = bbox
+        lo = int(torch.searchsorted(ys_sorted, torch.tensor([y0], dtype=ys_sorted.dtype))) if y0 > -math.inf else 0
+        hi = int(torch.searchsorted(ys_sorted, torch.tensor([y1], dtype=ys_sorted.dtype), right=True)) \
+            if y1 < math.inf else ys_sorted.numel()
+        if hi <= lo:
+            continue
+        bx = xs_sorted[lo:hi]
+        sel = ((bx >= x0) & (bx <= x1)).nonzero()[:, 0] + lo
+        if sel.numel() == 0:
+            continue
+        t = obj.intersect(PointRays(centre, dirs_sorted[sel]))
+        hidden_sorted[sel] |= t < 1 - rel_eps
+    hidden[order] |= hidden_sorted
+    return inside & ~hidden
+
+
+def specular_radiance(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.Tensor,
+                      eye: np.ndarray) -> torch.Tensor:
+    """Blinn-Phong ``ks max(0, n . h)^shininess`` :math:`(N,)` towards ``eye`` (zero on matte objects and
+    where the light is behind the surface). Only the points of shiny objects are evaluated."""
+    dtype = points.dtype
+    spec = torch.zeros(points.shape[0], dtype=dtype)
+    ks_table = np.array([o.material.specular for o in scene.objects] + [0.0])
+    if not np.any(ks_table > 0):
+        return spec
+    ks = torch.as_tensor(ks_table, dtype=dtype)[ids]  # id -1 reads the trailing 0
+    shiny = (ks > 0).nonzero()[:, 0]
+    if shiny.numel() == 0:
+        return spec
+    shin = torch.as_tensor(np.array([o.material.shininess for o in scene.objects] + [1.0]), dtype=dtype)[ids[shiny]]
+    light = torch.as_tensor(scene.light_dir, dtype=dtype)
+    n = normals[shiny]
+    view = torch.as_tensor(eye, dtype=dtype) - points[shiny]
+    half = view / torch.linalg.norm(view, dim=-1, keepdim=True).clamp(min=1e-12) + light
+    half = half / torch.linalg.norm(half, dim=-1, keepdim=True).clamp(min=1e-12)
+    ndh = (n * half).sum(-1).clamp(min=0.0)
+    spec[shiny] = ks[shiny] * ndh ** shin * ((n @ light) > 0)
+    return spec
 
 
 def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.Tensor, albedo: torch.Tensor,
@@ -244,28 +326,19 @@ def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.
     """
     dtype = points.dtype
     light = torch.as_tensor(scene.light_dir, dtype=dtype)
-    lambert = (normals @ light).clamp_(min=0.0)
-    irradiance = scene.ambient + (1 - scene.ambient) * lambert
+    irradiance = (normals @ (light * (1 - scene.ambient))).clamp_(min=0.0).add_(scene.ambient)[:, None]
     if extra_light_fn is not None:
         extra = extra_light_fn(points, normals, ids)
-        irradiance = irradiance[:, None] + (extra if extra.dim() == 2 else extra[:, None])
-    else:
-        irradiance = irradiance[:, None]
+        irradiance = irradiance + (extra if extra.dim() == 2 else extra[:, None])
     rgb = albedo * irradiance
-    spec = torch.zeros_like(lambert)
-    ks_table = np.array([o.material.specular for o in scene.objects] + [0.0])
-    if specular and np.any(ks_table > 0):
-        ks = torch.as_tensor(ks_table, dtype=dtype)[ids]  # id -1 reads the trailing 0
-        shin = torch.as_tensor(np.array([o.material.shininess for o in scene.objects] + [1.0]), dtype=dtype)[ids]
-        shiny = (ks > 0).nonzero()[:, 0]
-        if shiny.numel():
-            view = torch.as_tensor(eye, dtype=dtype) - points[shiny]
-            half = view / torch.linalg.norm(view, dim=-1, keepdim=True).clamp(min=1e-12) + light
-            half = half / torch.linalg.norm(half, dim=-1, keepdim=True).clamp(min=1e-12)
-            ndh = (normals[shiny] * half).sum(-1).clamp(min=0.0)
-            spec[shiny] = ks[shiny] * ndh ** shin[shiny] * (lambert[shiny] > 0)
-        rgb = rgb + spec[:, None]
-    rgb = torch.where((ids >= 0)[:, None], rgb, torch.zeros_like(rgb))
+    if specular:
+        spec = specular_radiance(scene, ids, points, normals, eye)
+        rgb += spec[:, None]
+    else:
+        spec = torch.zeros(points.shape[0], dtype=dtype)
+    miss = ids < 0
+    if bool(miss.any()):
+        rgb[miss] = 0.0
     return rgb, spec
 
 
@@ -324,11 +397,7 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
         oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
         sx = (ex.to(dtype)[:, None] + ox.reshape(1, -1)).reshape(-1)  # (M*s*s,)
         sy = (ey.to(dtype)[:, None] + oy.reshape(1, -1)).reshape(-1)
-        dirs = _pixel_rays(camera, sx, sy)
-        hits = raycast(scene, camera.center, dirs, torch.stack([sx, sy], -1), camera)
-        albedo = albedo_of_hits(scene, hits, dirs, 1.0 / (s * float(camera.K[0, 0])))
-        sub, _ = shade(scene, hits.ids, hits.points, hits.normals, albedo, camera.center, specular,
-                       extra_light_fn)
+        sub = render_rays(scene, camera, sx, sy, 1.0 / (s * float(camera.K[0, 0])), specular, extra_light_fn)
         rgb[ey * w + ex] = sub.reshape(-1, s * s, 3).mean(1)
     img = rgb.reshape(h, w, 3).permute(2, 0, 1)  # 3xHxW
     return {"image": img.clamp(0.0, 1.0).contiguous(), "depth": t, "ids": ids, "points": points,

@@ -65,7 +65,7 @@ def _paint_leaves(img, centres, radii, values, squares):  # pragma: no cover - c
 def _dead_leaves(rng: np.random.Generator, size: int, squares: bool) -> np.ndarray:
     """Periodic dead-leaves image: occluding discs (or squares) with power-law radii r^-3, painted back to front."""
     rmin, rmax = rng.uniform(1.0, 2.5), rng.uniform(25.0, 60.0)
-    n = 2500
+    n = 8000  # enough leaves to cover the tile several times over (a true dead-leaves image)
     u = rng.random(n)
     radii = (rmin ** -2 - u * (rmin ** -2 - rmax ** -2)) ** -0.5
     centres = rng.random((n, 2)) * size

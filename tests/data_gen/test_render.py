@@ -74,6 +74,17 @@ def test_occlusion_mask_is_lr_check_failure(seed, difficulty):
             ).float().mean() < 0.01
 
 
+def test_right_occlusion_is_the_mirrored_lr_check():
+    p = data_gen.render_pair(2, 1, difficulty=3, height=H, width=W, occlusion_right=True, **CLEAN)
+    occ_r = p["occlusion_right"][0]
+    assert occ_r.dtype == torch.bool and occ_r.any()
+    # mirror the pair: the right view becomes a left-referenced view of the flipped images
+    lr_fail = lr_check_failure(p["disparity_right"].flip(-1), p["disparity"].flip(-1)).flip(-1)
+    valid = p["valid_right"][0]
+    assert (lr_fail == occ_r)[valid].float().mean() > 0.98
+    assert "occlusion_right" not in data_gen.render_pair(2, 1, difficulty=0, height=32, width=64)
+
+
 def test_depth_is_f_b_over_disparity_and_disparity_in_range():
     for difficulty in range(data_gen.MAX_DIFFICULTY + 1):
         p = data_gen.render_pair(7, difficulty, difficulty=difficulty, height=H, width=W)
