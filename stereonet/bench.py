@@ -38,7 +38,7 @@ from stereonet.cli.eval import (
 PROG = "python -m stereonet.bench"
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE = "opencv-sgbm"
-SYNTHETIC_PAIRS = 12
+SYNTHETIC_PAIRS = 8
 
 
 def median_of(pairs: Sequence[PairResult], key: str, raw: bool = False) -> float | None:
@@ -233,7 +233,7 @@ def build_parser() -> OneLineParser:
     p.add_argument("--methods", default="all", help="comma-separated names or 'all' (default)")
     p.add_argument("--synthetic", type=int, default=SYNTHETIC_PAIRS, help="synthetic pairs (default %(default)s)")
     p.add_argument("--no-real", action="store_true", help="skip ../shared/data")
-    p.add_argument("--budget", type=float, default=240.0,
+    p.add_argument("--budget", type=float, default=45.0,
                    help="seconds a method may spend per dataset before its remaining pairs are skipped")
     p.add_argument("--out", type=Path, default=REPO / "BENCHMARKS.md")
     p.add_argument("--docs", type=Path, default=REPO / "docs" / "bench")

@@ -1,7 +1,7 @@
 """eval.py: every registered method on the same datasets, one table of standard metrics.
 
     python eval.py --methods A,B,...|all --data SPEC[,SPEC...] [--max-disp N] [--json FILE] [--plots DIR]
-                   [--fill] [--shard i/n]
+                   [--fill] [--shard i/n] [--budget SECONDS]
 
 SPEC is ``synthetic[:N]``, ``middlebury2001:DIR``, ``middlebury2003:DIR``, ``middlebury2014:DIR``,
 ``kitti2012:DIR``, ``kitti2015:DIR``, ``folder:DIR``, or ``real`` (every dataset in ../shared/data, one table
@@ -15,8 +15,9 @@ What the numbers mean:
 - bad-t and D1 count the pixels a method leaves invalid as errors; EPE and SEE have no value for them and
   average the predicted pixels only, so read them with ``density`` (the share of GT pixels predicted), as
   :mod:`stereonet.metrics` defines. ``*_noc`` (non-occluded) and ``*_occ`` metrics appear when the dataset
-  has an occlusion mask; the table shows EPE-noc and bad-2-noc, the JSON every key. ``--fill`` applies one shared filling
-  (:func:`stereonet.optimize.fill.fill_occlusions`) to every method's invalid pixels for a dense comparison.
+  has an occlusion mask; the table shows EPE-noc and bad-2-noc, the JSON every key. ``--fill`` applies one
+  shared filling (:func:`stereonet.optimize.fill.fill_occlusions`) to every method's invalid pixels for a
+  dense comparison.
 - SEE (soft edge error, SMD-Nets) is computed for every method from its disparity on the ground truth's
   depth-discontinuity pixels (not only for methods with a mixture head), so edge sharpness compares across
   all methods alike.
@@ -24,6 +25,11 @@ What the numbers mean:
   untimed warm-up call per method on a small crop (JIT compilation and weight loading excluded).
 - ``peak_mib`` is the largest extra resident memory of one matcher call over the pairs (see
   :mod:`stereonet.cli.common` for how it is measured and its limits).
+
+``--methods all`` leaves out learned methods whose trained weights are missing (a note says which); naming
+one explicitly is an error. ``--budget S`` bounds slow methods: once a method has spent S seconds on one
+dataset, its remaining pairs there are skipped (``skipped`` in the row). ``--shard i/n`` keeps the pairs
+whose index is i modulo n.
 
 A method that raises on a pair does not stop the run: the pair is counted in the row's ``failed`` key, the
 first error message is kept in ``error``, the metrics average the pairs that worked, and the table marks the
@@ -415,6 +421,8 @@ def build_parser() -> OneLineParser:
     p.add_argument("--plots", type=Path, default=None, help="write per-pair panels and a bad-2 bar chart here")
     p.add_argument("--fill", action="store_true", help="fill every method's invalid pixels the same way")
     p.add_argument("--shard", default=None, help="evaluate only pairs with index %% n == i (i/n)")
+    p.add_argument("--budget", type=float, default=None,
+                   help="seconds a method may spend on one dataset; its remaining pairs there are skipped")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -432,7 +440,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"--max-disp: expected a positive integer, got {args.max_disp}")
         if args.fill:
             import stereonet.optimize.fill  # noqa: F401 - fail now, not after the first pair
-        ev = run_evaluation(methods, specs, args.max_disp, args.fill, shard, args.plots, not args.no_progress)
+        if args.budget is not None and not args.budget > 0:
+            raise ValueError(f"--budget: expected a positive number of seconds, got {args.budget}")
+        ev = run_evaluation(methods, specs, args.max_disp, args.fill, shard, args.plots, not args.no_progress,
+                            budget=args.budget)
     except USER_ERRORS as e:
         return fail(PROG, e)
     except ImportError as e:

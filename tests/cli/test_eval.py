@@ -174,3 +174,11 @@ def test_all_skips_methods_without_weights(monkeypatch, tmp_path):
     assert "weightless-test" in skipped
     with pytest.raises(FileNotFoundError, match="weights"):
         ev.parse_methods("opencv-bm,weightless-test")
+
+
+def test_budget_skips_remaining_pairs():
+    result = ev.run_evaluation(["opencv-bm"], ["fake"], progress=False, load=lambda s: tiny_dataset(s, n=3),
+                               budget=1e-9)
+    row = result.rows[0]
+    assert row["pairs"] == 1 and row["skipped"] == 2 and row["failed"] == 0
+    assert "skipped (time budget)" in ev.format_table(result.rows)
