@@ -70,12 +70,15 @@ def check_render_args(seed, index, difficulty, height, width, supersample, max_d
 
 
 def _photometric(rng: np.random.Generator, level: dict) -> dict:
-    """Per-camera response: gains (3,), bias, gamma, blur sigma, noise sigma (all sampled, used or not)."""
+    """Per-camera response: gains (3,), bias, gamma, vignetting, blur sigma, noise sigma (all sampled, used
+    or not, so that switching an effect off leaves the others unchanged)."""
     p = level["photometric"]
-    return dict(gain=(1 + rng.uniform(-p, p)) * (1 + rng.uniform(-p / 3, p / 3, 3)),
-                bias=rng.uniform(-p / 3, p / 3), gamma=1 + rng.uniform(-1.5 * p, 1.5 * p),
-                blur=rng.uniform(0.0, level["blur"]), noise=level["noise"] * rng.uniform(0.5, 1.0),
-                noise_seed=int(rng.integers(2 ** 62)))
+    params = dict(gain=(1 + rng.uniform(-p, p)) * (1 + rng.uniform(-p / 3, p / 3, 3)),
+                  bias=rng.uniform(-p / 3, p / 3), gamma=1 + rng.uniform(-1.5 * p, 1.5 * p),
+                  blur=rng.uniform(0.0, level["blur"]), noise=level["noise"] * rng.uniform(0.5, 1.0),
+                  noise_seed=int(rng.integers(2 ** 62)))
+    params["vignetting"] = rng.uniform(0.0, 2 * p)
+    return params
 
 
 def _gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -90,15 +93,23 @@ def _gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
 
 def apply_camera_response(img: torch.Tensor, params: dict, photometric: bool = True, blur: bool = True,
                           noise: bool = True) -> torch.Tensor:
-    """Optics and sensor: blur, gain/bias/gamma, additive Gaussian noise; :math:`(3, H, W)` in/out, [0, 1]."""
+    """Optics and sensor, :math:`(3, H, W)` in/out in [0, 1]: blur; vignetting ``1 - v r^2`` (r = 1 at the
+    corners), gain/bias/gamma; signal-dependent Gaussian noise with std ``noise * sqrt(0.25 + I)``."""
     if blur:
         img = _gaussian_blur(img, params["blur"])
     if photometric:
         gain = torch.as_tensor(params["gain"], dtype=img.dtype)[:, None, None]
+        v = params.get("vignetting", 0.0)
+        if v > 0:
+            _, h, w = img.shape
+            yy = torch.linspace(-1.0, 1.0, h, dtype=img.dtype)[:, None] ** 2
+            xx = torch.linspace(-1.0, 1.0, w, dtype=img.dtype)[None, :] ** 2
+            gain = gain * (1 - v * 0.5 * (xx + yy))  # 3xHxW
         img = (img * gain + params["bias"]).clamp(0.0, 1.0) ** params["gamma"]
     if noise and params["noise"] > 0:
         g = torch.Generator().manual_seed(params["noise_seed"])
-        img = img + params["noise"] * torch.randn(img.shape, generator=g, dtype=img.dtype)
+        sigma = params["noise"] * torch.sqrt(0.25 + img)
+        img = img + sigma * torch.randn(img.shape, generator=g, dtype=img.dtype)
     return img.clamp(0.0, 1.0)
 
 

@@ -216,3 +216,17 @@ def test_cylinder_and_patch_intersections_match_closed_form():
     assert hits.ids.tolist() == [1, 0, -1, 0]  # patch, cylinder side, miss, cylinder above the patch
     assert math.isclose(hits.t[0], 500.0) and math.isclose(hits.t[1], 950.0, rel_tol=1e-9)
     assert math.isinf(hits.t[2])
+
+
+def test_camera_effects_change_the_images_not_the_scene():
+    clean = data_gen.render_pair(6, 0, difficulty=4, height=H, width=W, **CLEAN)
+    real = data_gen.render_pair(6, 0, difficulty=4, height=H, width=W)
+    assert torch.equal(clean["disparity"], real["disparity"]) and torch.equal(clean["occlusion"], real["occlusion"])
+    mask = (clean["valid"] & ~clean["occlusion"] & ~clean["specular"])[0] & ~near_discontinuity(clean["disparity"])
+
+    def warp_error(p):
+        return (warp_right_to_left(p["right"], p["disparity"]) - p["left"]).abs().mean(0)[mask].mean()
+
+    # per-camera gain/gamma/vignetting/noise/blur make the two views differ photometrically
+    assert warp_error(real) > 2 * warp_error(clean)
+    assert (real["left"] - clean["left"]).abs().mean() > 0.005
