@@ -26,7 +26,6 @@ else ``opencv-sgbm``.
 
 from __future__ import annotations
 
-import contextlib
 import glob
 import json
 import math
@@ -341,15 +340,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if len(failures) == len(pairs):
             raise StereoInputError("every pair failed; nothing written")
         _publish(tmp, out)
-    except USER_ERRORS as e:
+    except BaseException as e:  # nothing half-written: the temporary folder goes, OUT is untouched
         shutil.rmtree(tmp, ignore_errors=True)
-        return fail(PROG, e)
-    except ImportError as e:
-        shutil.rmtree(tmp, ignore_errors=True)
-        return fail(PROG, f"{e} (this part of stereonet is not installed)")
-    except BaseException:
-        with contextlib.suppress(OSError):
-            shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(e, USER_ERRORS):
+            return fail(PROG, e)
+        if isinstance(e, ImportError):
+            return fail(PROG, f"{e} (this part of stereonet is not installed)")
+        if isinstance(e, RuntimeError):  # the method itself failed (e.g. out of memory)
+            return fail(PROG, f"--method {method}: {e}", 1)
         raise
     if failures:
         return 1
