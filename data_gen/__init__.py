@@ -4,7 +4,11 @@ Main entry points
 -----------------
 * :func:`render_pair` ``(seed, index, difficulty=2, height=256, width=512, rectified=True, supersample=2, ...)``
   -> dict (images, disparities, occlusion/specular masks, depth, correspondences, calibration); a pure function
-  of ``(seed, index)`` and its options.
+  of ``(seed, index)`` and its options. Ground truth comes from one ray through each pixel centre (exact
+  there); images use the same ray inside surfaces (textures mip-filtered to the pixel footprint) and
+  ``supersample x supersample`` rays on object boundaries and normal creases. Keyword options switch off
+  noise / photometric differences / blur / speculars without changing the scene, and ``occlusion_right=True``
+  adds the right-view occlusion mask.
 * :class:`SyntheticStereo` ``(count, seed=0, difficulty=2, height=256, width=512, ...)`` — a torch Dataset
   rendering on the fly; use :func:`collate` with a DataLoader (``Calibration`` objects are kept in lists).
 * :data:`MAX_DIFFICULTY` — the curriculum runs 0 (few fronto-parallel textured planes, small disparity, clean)
@@ -26,7 +30,10 @@ Units are millimetres; the left camera is the world frame.
   (``objects``: primitives :class:`Plane`, :class:`PlanarPatch`, :class:`Sphere`, :class:`Cylinder`, each with a
   :class:`Material`; ``light_dir``; ``ambient``). Objects can also be built by hand: ``Scene([Plane(...), ...])``.
 * :func:`raycast` ``(scene, origins (N, 3) | (3,), dirs (N, 3))`` -> :class:`RayHits`
-  ``(t (N,), ids (N,), points (N, 3), normals (N, 3), uv (N, 2))``; ``t = inf``, ``ids = -1`` on a miss.
+  ``(t (N,), ids (N,), points (N, 3), normals (N, 3), uv (N, 2))``; ``t = inf``, ``ids = -1`` on a miss;
+  :func:`albedo_of_hits` ``(scene, hits, dirs)`` -> albedo (N, 3) of those hits. :func:`raycast_grid` /
+  :func:`surface_fields` do the same for a camera's whole pixel grid (each object tested only inside its
+  projected bounding box).
 * :func:`visible_from` ``(scene, camera, points)`` -> bool (N,): seen by the camera (shadow/occlusion tests,
   e.g. whether a projector illuminates a point).
 * :func:`shade` ``(scene, ids, points, normals, albedo, eye, specular=True, extra_light_fn=None)`` and
@@ -43,22 +50,33 @@ from data_gen.camera import Camera, GridRays, PointRays
 from data_gen.dataset import SyntheticStereo, collate
 from data_gen.pair import apply_camera_response, calibration_of, render_pair
 from data_gen.primitives import Cylinder, PlanarPatch, Plane, Primitive, Sphere
-from data_gen.render import RayHits, raycast, raycast_grid, render_view, shade, visible_from
-from data_gen.scene import (  # noqa: I001
-                            DIFFICULTY,
-                            MAX_DIFFICULTY,
-                            Rig,
-                            Scene,
-                            check_difficulty,
-                            default_max_disp,
-                            sample_rig,
-                            sample_scene,
+from data_gen.render import (
+    RayHits,
+    albedo_of_hits,
+    raycast,
+    raycast_grid,
+    render_view,
+    shade,
+    specular_radiance,
+    surface_fields,
+    visible_from,
+)
+from data_gen.scene import (
+    DIFFICULTY,
+    MAX_DIFFICULTY,
+    Rig,
+    Scene,
+    check_difficulty,
+    default_max_disp,
+    sample_rig,
+    sample_scene,
 )
 from data_gen.textures import Material
 
 __all__ = [
     "DIFFICULTY", "MAX_DIFFICULTY", "Camera", "Cylinder", "GridRays", "Material", "PlanarPatch", "Plane",
-    "PointRays", "Primitive", "RayHits", "Rig", "Scene", "Sphere", "SyntheticStereo", "apply_camera_response",
+    "PointRays", "Primitive", "RayHits", "Rig", "Scene", "Sphere", "SyntheticStereo", "albedo_of_hits",
+    "apply_camera_response", "specular_radiance", "surface_fields",
     "calibration_of", "check_difficulty", "collate", "default_max_disp", "raycast", "raycast_grid",
     "render_pair", "render_view", "sample_rig", "sample_scene", "shade", "visible_from",
 ]

@@ -5,7 +5,7 @@
 * :func:`raycast` — first hits of arbitrary rays ``origins (N, 3) | (3,)``, ``dirs (N, 3)``.
 * :func:`shade` — Lambertian + Blinn-Phong shading of hit points for one viewpoint, plus an optional extra
   light term (e.g. a projector pattern).
-* :func:`render_view` — supersampled radiance image plus exact centre-ray geometry of one camera.
+* :func:`render_view` — radiance image (adaptively supersampled) plus exact centre-ray geometry of one camera.
 * :func:`visible_from` — which world points a camera sees (not hidden by a nearer surface).
 """
 
@@ -52,7 +52,7 @@ def raycast_grid(scene: Scene, grid: GridRays) -> tuple[torch.Tensor, torch.Tens
 
     Returns:
         t :math:`(H', W')` ray parameter (= depth in the grid camera's frame; inf = miss), ids :math:`(H', W')`
-        long object index (-1 = miss), and the per-object sample ranges used (for :func:`surface_fields`).
+        long object index (-1 = miss), and per object the sample block ``(r0, r1, c0, c1)`` it was tested on.
     """
     t_best = torch.full(grid.shape, math.inf, dtype=grid.dtype)
     ids = torch.full(grid.shape, -1, dtype=torch.long)
@@ -142,11 +142,11 @@ def unsort(values: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def surface_fields(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Tensor, ranges: list | None = None,
+def surface_fields(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Tensor,
                    with_albedo: bool = True) -> dict[str, torch.Tensor]:
     """Points, normals, uv (and albedo) of the hits found by :func:`raycast_grid`, flattened to :math:`(H' W', k)`.
 
-    Misses get zeros (their ``ids`` are -1). ``ranges`` is unused (kept for compatibility).
+    Misses get zeros (their ``ids`` are -1).
     """
     srt = sorted_surface(scene, grid, t, ids, with_albedo)
     keys = ("points", "normals", "uv") + (("albedo",) if with_albedo else ())
@@ -342,8 +342,10 @@ def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.
     return rgb, spec
 
 
-def edge_pixels(ids: torch.Tensor) -> torch.Tensor:
-    """Bool :math:`(H, W)`: pixels whose object id differs from one of their 8 neighbours."""
+def edge_pixels(ids: torch.Tensor, normals: torch.Tensor | None = None, crease: float = 0.1) -> torch.Tensor:
+    """Bool :math:`(H, W)`: pixels whose object id differs from one of their 8 neighbours, or (with
+    ``normals`` :math:`(H, W, 3)`) whose normal turns by more than ``1 - cos = crease`` towards a 4-neighbour
+    (cylinder rims, grazing sphere edges)."""
     pad = torch.nn.functional.pad(ids[None, None].double(), (1, 1, 1, 1), mode="replicate")[0, 0]
     h, w = ids.shape
     edge = torch.zeros_like(ids, dtype=torch.bool)
@@ -352,6 +354,13 @@ def edge_pixels(ids: torch.Tensor) -> torch.Tensor:
         for dx in (0, 1, 2):
             if dy != 1 or dx != 1:
                 edge |= pad[dy:dy + h, dx:dx + w] != centre
+    if normals is not None:
+        bend_x = (normals[:, 1:] * normals[:, :-1]).sum(-1) < 1 - crease  # Hx(W-1)
+        bend_y = (normals[1:] * normals[:-1]).sum(-1) < 1 - crease  # (H-1)xW
+        edge[:, 1:] |= bend_x
+        edge[:, :-1] |= bend_x
+        edge[1:] |= bend_y
+        edge[:-1] |= bend_y
     return edge
 
 
@@ -363,8 +372,7 @@ def _pixel_rays(camera: Camera, x: torch.Tensor, y: torch.Tensor) -> torch.Tenso
 
 
 def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bool = True,
-                extra_light_fn: Callable | None = None, geometry: bool = True,
-                dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
+                extra_light_fn: Callable | None = None, dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
     """Render one camera.
 
     One ray through each pixel centre gives the geometry (exact at pixel centres) and the shading of
@@ -375,8 +383,7 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     Returns a dict with ``image`` :math:`(3, H, W)` radiance clipped to [0, 1], ``depth`` :math:`(H, W)`
     (z in this camera's frame, inf = miss), ``ids`` :math:`(H, W)` long, ``points`` and ``normals``
     :math:`(H W, 3)` (world frame, centre rays), ``specular`` :math:`(H, W)` specular radiance at the centre
-    rays, ``edges`` :math:`(H, W)` bool (the supersampled pixels). ``geometry`` is accepted for backward
-    compatibility (the geometry is always computed).
+    rays, ``edges`` :math:`(H, W)` bool (the supersampled pixels: object boundaries and normal creases).
     """
     s = int(supersample)
     if s < 1:
@@ -390,7 +397,7 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
                       specular, extra_light_fn)
     rgb, spec = unsort(rgb, order), unsort(spec, order)
     points, normals = unsort(srt["points"], order), unsort(srt["normals"], order)
-    edges = edge_pixels(ids) if s > 1 else torch.zeros_like(ids, dtype=torch.bool)
+    edges = edge_pixels(ids, normals.reshape(h, w, 3)) if s > 1 else torch.zeros_like(ids, dtype=torch.bool)
     ey, ex = torch.nonzero(edges, as_tuple=True)
     if ey.numel():
         offsets = (torch.arange(s, dtype=dtype) + 0.5) / s - 0.5

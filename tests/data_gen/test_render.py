@@ -200,8 +200,8 @@ def test_raycast_and_visibility_on_a_hand_built_scene():
                        dtype=torch.float64)  # behind the ball, beside it, on it, outside the image
     assert data_gen.visible_from(scene, cam, pts).tolist() == [False, True, True, False]
     # an extra light term (a projector) brightens the image where it shines
-    base = data_gen.render_view(scene, cam, supersample=1, geometry=False)["image"]
-    lit = data_gen.render_view(scene, cam, supersample=1, geometry=False,
+    base = data_gen.render_view(scene, cam, supersample=1)["image"]
+    lit = data_gen.render_view(scene, cam, supersample=1,
                                extra_light_fn=lambda p, n, ids: (p[:, 0] > 0).to(p.dtype) * 0.3)["image"]
     assert torch.all(lit[:, :, 60:] >= base[:, :, 60:]) and torch.equal(lit[:, :, :40], base[:, :, :40])
 
