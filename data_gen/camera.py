@@ -14,7 +14,7 @@ Ray sets expose the few scalar products the primitives need (``w . d``, ``w . o`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -35,6 +35,7 @@ class Camera:
     t: np.ndarray
     size: tuple[int, int]
     dist: np.ndarray | None = None
+    _bbox_cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
@@ -136,10 +137,15 @@ class Camera:
         """Conservative pixel bounding box ``(x0, x1, y0, y1)`` of a world sphere, or None if surely unseen.
 
         Returns the whole (unbounded) plane ``(-inf, inf, -inf, inf)`` when the sphere reaches behind the
-        camera.
+        camera. Results are cached per (centre, radius, margin).
         """
-        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
-        pc = (centre[None, :] + radius * corners) @ self.R.T + self.t  # 8x3, box around the sphere
+        key = (*np.asarray(centre, dtype=np.float64).tolist(), float(radius), float(margin))
+        if key not in self._bbox_cache:
+            self._bbox_cache[key] = self._pixel_bbox(np.asarray(centre, dtype=np.float64), radius, margin)
+        return self._bbox_cache[key]
+
+    def _pixel_bbox(self, centre: np.ndarray, radius: float, margin: float):
+        pc = (centre[None, :] + radius * _BOX_CORNERS) @ self.R.T + self.t  # 8x3, box around the sphere
         if np.any(pc[:, 2] <= 1e-9):
             if np.all(pc[:, 2] <= 1e-9):
                 return None
@@ -159,6 +165,9 @@ class Camera:
         px = np.array([K[0, 0] * x0 + K[0, 2] - skew, K[0, 0] * x1 + K[0, 2] + skew])
         py = K[1, 1] * np.array([y0, y1]) + K[1, 2]
         return (float(px.min() - margin), float(px.max() + margin), float(py.min() - margin), float(py.max() + margin))
+
+
+_BOX_CORNERS = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
 
 
 def _dot3(w) -> np.ndarray:

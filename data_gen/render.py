@@ -254,6 +254,7 @@ def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: fl
     hidden = torch.zeros(points.shape[0], dtype=torch.bool)
     ys_sorted, order = torch.sort(pix[:, 1].contiguous())  # objects are tested on the rows they cover
     xs_sorted = pix[order, 0]
+    ys_np = ys_sorted.numpy()
     dirs_sorted = points[order] - torch.as_tensor(centre, dtype=points.dtype)
     hidden_sorted = torch.zeros_like(hidden)
     for obj in scene.objects:
@@ -267,9 +268,8 @@ def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: fl
         if bbox is None:
             continue
         x0, x1, y0, y1 = bbox
-        lo = int(torch.searchsorted(ys_sorted, torch.tensor([y0], dtype=ys_sorted.dtype))) if y0 > -math.inf else 0
-        hi = int(torch.searchsorted(ys_sorted, torch.tensor([y1], dtype=ys_sorted.dtype), right=True)) \
-            if y1 < math.inf else ys_sorted.numel()
+        lo = int(np.searchsorted(ys_np, y0, side="left"))
+        hi = int(np.searchsorted(ys_np, y1, side="right"))
         if hi <= lo:
             continue
         bx = xs_sorted[lo:hi]

@@ -90,7 +90,7 @@ def _voronoi(rng: np.random.Generator, size: int) -> np.ndarray:
 
 
 MIP_LEVELS = 6  # bank mip-map levels: 256, 128, ..., 8 texels per side
-_MIP_OFFSETS = [sum((BANK_SIZE >> k) ** 2 for k in range(level)) for level in range(MIP_LEVELS + 1)]
+_MIP_OFFSETS = torch.tensor([sum((BANK_SIZE >> k) ** 2 for k in range(level)) for level in range(MIP_LEVELS + 1)])
 
 
 @lru_cache(maxsize=BANK_COUNT)
@@ -139,7 +139,7 @@ def sample_bank(index: int, s: torch.Tensor, t: torch.Tensor, texels_per_sample:
     scale = torch.ldexp(torch.ones_like(s), -level)  # 2^-level
     size = BANK_SIZE >> level
     mask = size - 1
-    offset = torch.as_tensor(_MIP_OFFSETS, dtype=torch.long)[level]
+    offset = _MIP_OFFSETS[level]
     x = s * scale - 0.5
     y = t * scale - 0.5
     x0f = torch.floor(x)
@@ -240,7 +240,7 @@ class Material:
                 g1 = mean + keep * (g1 - mean)
         if self.contrast != 1.0:
             g1 = 0.5 + self.contrast * (g1 - 0.5)
-        cols = torch.as_tensor(self.colors, dtype=uv.dtype)
+        cols = torch.as_tensor(np.asarray(self.colors), dtype=uv.dtype)
         rgb = cols[0] + g1[:, None] * (cols[1] - cols[0])
         if g2 is not None:
             rgb = rgb + (g2[:, None] - 0.5) * cols[2]
