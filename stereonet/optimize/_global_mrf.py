@@ -109,3 +109,24 @@ def truncated_linear_min_convolution(h: torch.Tensor, slope: torch.Tensor | floa
     backward = torch.flip(torch.cummin(torch.flip(h + ramp, [1]), dim=1).values, [1]) - ramp
     capped = h.amin(dim=1, keepdim=True) + slope * truncation
     return torch.minimum(torch.minimum(forward, backward), capped)
+
+
+def left_occlusions_from_disparity(disp: torch.Tensor) -> torch.Tensor:
+    """Left-occluded pixels implied by a left disparity map (the occlusion constraint along scanlines).
+
+    Left pixel ``x`` lands at ``x - d(x)`` in the right image. When some pixel ``x' > x`` lands at or to the
+    left of it (``x' - d(x') <= x - d(x)``, so ``d(x') > d(x)``: ``x'`` is in front), ``x`` is hidden in the
+    right view. Pixels landing outside the right image (``x - d(x) < 0``) have no match either and are
+    labelled too. Disparities are rounded first.
+
+    Args:
+        disp: :math:`(B, 1, H, W)`.
+    Returns:
+        :math:`(B, 1, H, W)` bool, True = left-occluded.
+    """
+    w = disp.shape[-1]
+    right_x = torch.arange(w, device=disp.device, dtype=torch.float64) - disp.detach().round().double()
+    # smallest landing position of the pixels strictly to the right of x
+    suffix_min = torch.flip(torch.cummin(torch.flip(right_x, [-1]), dim=-1).values, [-1])
+    after = torch.cat([suffix_min[..., 1:], torch.full_like(suffix_min[..., :1], math.inf)], dim=-1)
+    return (right_x >= after) | (right_x < 0)

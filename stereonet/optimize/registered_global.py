@@ -7,11 +7,16 @@ Defaults were tuned on the Middlebury pairs of ``../shared/data`` (see ``scripts
 
 * ``dp``: the three-case scanline DP (:func:`stereonet.optimize.dp.scanline_dp`); left-occluded pixels are
   ``valid = False``, filled from their left neighbour on the scanline, and labelled in
-  ``extras["occlusion"]``. ``mode="energy"`` runs the per-scanline energy DP instead (all pixels valid).
+  ``extras["occlusion"]``. ``mode="energy"`` runs the per-scanline energy DP instead.
 * ``bp``: coarse-to-fine min-sum loopy BP (:func:`stereonet.optimize.bp.belief_propagation`) with
   contrast-weighted truncated-linear smoothness; ``extras["beliefs"]`` holds the final beliefs.
 * ``graphcut``: α-expansion (:func:`stereonet.optimize.graphcut.alpha_expansion`) from the WTA labels,
   same energy as ``bp``; ``extras["energy"]`` holds the final energy per batch item.
+
+``bp``, ``graphcut`` and ``dp`` with ``mode="energy"`` do not model occlusions in their energy; the pixels their
+own map declares hidden in the right view (a pixel further right lands on the same right pixel or beyond it,
+:func:`~stereonet.optimize._global_mrf.left_occlusions_from_disparity`) are returned ``valid = False``,
+labelled in ``extras["occlusion"]`` and filled from their left neighbour like ``dp``'s.
 
 Sub-pixel disparities come from a parabola fit on the data cost (``dp``, ``graphcut``) or on the beliefs
 (``bp``) around the integer optimum (``subpixel=False`` keeps integers).
@@ -23,9 +28,9 @@ import torch
 
 from stereonet.checks import check_stereo_inputs
 from stereonet.matchers import register
-from stereonet.optimize._global_mrf import contrast_edge_weights
+from stereonet.optimize._global_mrf import contrast_edge_weights, left_occlusions_from_disparity
 from stereonet.optimize.bp import belief_propagation
-from stereonet.optimize.dp import energy_dp, scanline_dp
+from stereonet.optimize.dp import energy_dp, fill_left_occluded, scanline_dp
 from stereonet.optimize.graphcut import alpha_expansion
 from stereonet.types import StereoOutput
 
@@ -46,6 +51,16 @@ def _refine(volume: torch.Tensor, disp: torch.Tensor, subpixel: bool) -> torch.T
     from stereonet.optimize.subpixel import subpixel_refine
 
     return subpixel_refine(volume, disp)
+
+
+def _occlusion_filled(volume: torch.Tensor, labels: torch.Tensor, subpixel: bool
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Integer labels -> (disparity, valid, occlusion): pixels the map itself declares left-occluded
+    (:func:`~stereonet.optimize._global_mrf.left_occlusions_from_disparity`) are invalid and take the
+    disparity of their nearest visible left neighbour (the textbook scanline fill); the rest are refined."""
+    occlusion = left_occlusions_from_disparity(labels)
+    disp = fill_left_occluded(_refine(volume, labels, subpixel), occlusion)
+    return disp, ~occlusion, occlusion
 
 
 @register("dp", kind="classical",
@@ -75,8 +90,7 @@ def dp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
     elif mode == "energy":
         weights, _ = contrast_edge_weights(left)
         res = energy_dp(volume, smoothness, truncation, weights=weights)
-        disp = _refine(volume, res.disparity, subpixel)
-        valid = torch.ones_like(disp, dtype=torch.bool)
+        disp, valid, extras["occlusion"] = _occlusion_filled(volume, res.disparity, subpixel)
         extras["energy"] = res.energy
     else:
         raise ValueError(f"mode: expected 'occlusion' or 'energy', got {mode!r}")
@@ -102,7 +116,7 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
                iterations: int = 5, levels: int = 5, contrast_threshold: float = 0.03,
                contrast_factor: float = 3.0, subpixel: bool = True, cost_options: dict | None = None
                ) -> StereoOutput:
-    """Loopy BP. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput` (all pixels valid).
+    """Loopy BP. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
 
     The smoothness weight is multiplied by ``contrast_factor`` across edges whose colour difference is below
     ``contrast_threshold`` (see :func:`stereonet.optimize._global_mrf.contrast_edge_weights`).
@@ -110,9 +124,9 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
                                   contrast_factor)
     res = belief_propagation(volume, smoothness, truncation, iterations, levels, wr, wd)
-    disp = _refine(res.beliefs, res.disparity, subpixel)
-    valid = torch.ones_like(disp, dtype=torch.bool)
-    return StereoOutput(disp, valid, cost_volume=volume, extras={"beliefs": res.beliefs, "energy": res.energy})
+    disp, valid, occlusion = _occlusion_filled(res.beliefs, res.disparity, subpixel)
+    return StereoOutput(disp, valid, cost_volume=volume,
+                        extras={"beliefs": res.beliefs, "energy": res.energy, "occlusion": occlusion})
 
 
 @register("graphcut", kind="classical",
@@ -122,13 +136,12 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
                      window: int = DEFAULT_WINDOW, smoothness: float = 0.4, truncation: float = 2.0,
                      cycles: int = 1, contrast_threshold: float = 0.03, contrast_factor: float = 3.0,
                      subpixel: bool = True, cost_options: dict | None = None) -> StereoOutput:
-    """α-expansion. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput` (all pixels valid).
+    """α-expansion. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
 
     ``cycles`` passes over the ``max_disp + 1`` labels, each one max-flow on an ``H·W``-node grid graph.
     """
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
                                   contrast_factor)
     res = alpha_expansion(volume, smoothness, truncation, cycles, None, wr, wd)
-    disp = _refine(volume, res.disparity, subpixel)
-    valid = torch.ones_like(disp, dtype=torch.bool)
-    return StereoOutput(disp, valid, cost_volume=volume, extras={"energy": res.energy})
+    disp, valid, occlusion = _occlusion_filled(volume, res.disparity, subpixel)
+    return StereoOutput(disp, valid, cost_volume=volume, extras={"energy": res.energy, "occlusion": occlusion})

@@ -90,8 +90,9 @@ def test_contrast_weights():
 
 def test_bp_matcher(textured_pair):
     left, right, d = textured_pair
-    out = match("bp", left.expand(1, 3, -1, -1), right.expand(1, 3, -1, -1), 10)
-    assert out.valid.all() and out.cost_volume.shape == (1, 11, 48, 96)
+    out = match("bp", left.expand(1, 3, -1, -1), right.expand(1, 3, -1, -1), 10, cost="sad", window=3)
+    assert out.valid[..., 10:].all() and out.cost_volume.shape == (1, 11, 48, 96)
+    assert torch.equal(out.valid, ~out.extras["occlusion"])
     assert (out.disparity[..., 10:] - d).abs().max() < 0.5
 
 

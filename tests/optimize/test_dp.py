@@ -9,6 +9,7 @@ import torch
 
 from stereonet.checks import StereoInputError
 from stereonet.matchers import match
+from stereonet.optimize._global_mrf import left_occlusions_from_disparity
 from stereonet.optimize.dp import energy_dp, fill_left_occluded, scanline_dp
 
 
@@ -133,13 +134,19 @@ def test_fill_left_occluded():
 
 def test_dp_matcher(textured_pair):
     left, right, d = textured_pair
-    out = match("dp", left, right, 10)
+    out = match("dp", left, right, 10, cost="sad", window=3, occlusion_cost=0.1)
     assert out.cost_volume.shape == (1, 11, 48, 96)
     assert torch.equal(out.valid, ~out.extras["occlusion"])
     assert (out.disparity[..., 10:] - d).abs().max() < 0.5
-    assert not out.valid[..., 10:].logical_not().any()
-    out = match("dp", left, right, 10, mode="energy")
-    assert out.valid.all() and (out.disparity[..., 10:] - d).abs().max() < 0.5
+    assert out.valid[..., 10:].all() and not out.valid[..., :d].any()
+    out = match("dp", left, right, 10, mode="energy", cost="sad", window=3)
+    assert out.valid[..., 10:].all() and (out.disparity[..., 10:] - d).abs().max() < 0.5
+
+
+def test_occlusions_from_disparity_on_the_step_edge():
+    _, _, truth, occluded = step_edge_pair()
+    found = left_occlusions_from_disparity(truth[None, None].double())
+    assert torch.equal(found[0, 0], occluded)
 
 
 def test_bad_inputs():
