@@ -275,7 +275,7 @@ def projector_depth(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeC
 
     Returns:
         depth :math:`(B, 1, H, W)` float64 (0 where invalid) and valid. Columns outside the projector image
-        and rays grazing their light plane are invalid.
+        or within one pixel of its border, and rays grazing their light plane, are invalid.
     """
     check_shape(columns, ["B", "1", "H", "W"], "columns")
     if valid.shape != columns.shape:
@@ -284,7 +284,8 @@ def projector_depth(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeC
     if (h, w) != (camera.height, camera.width):
         raise StereoInputError(f"columns: expected (B, 1, {camera.height}, {camera.width}) for this camera, "
                                f"got {tuple(columns.shape)}")
-    inside = valid & (columns >= -0.5) & (columns <= projector.width - 0.5)
+    # a pixel within a projector pixel of the frustum border is partly unlit: its decoded column is biased
+    inside = valid & (columns >= 0.5) & (columns <= projector.width - 1.5)
     n_c, c_c = projector_column_planes(columns[:, 0], camera, projector)  # BxHxWx3, BxHxW
     v, u = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
     uv = torch.stack([u, v], dim=-1).expand(b, h, w, 2)
