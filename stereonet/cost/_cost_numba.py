@@ -2,7 +2,7 @@
 
 They compute exactly the definitions of :mod:`stereonet.cost.volume` (tested equal to the torch path):
 right pixels left of the image are replaced by the border column while aggregating, box means are over
-the in-image part of the window, and out-of-image matches get ``max(valid costs) + 1`` at the end.
+the in-image part of the window, and out-of-image matches get ``max(volume before filling) + 1`` at the end.
 Rows (or columns) run in parallel with ``prange``.
 """
 
@@ -190,21 +190,6 @@ def min_filter_hwd(vol, window):
 
 
 @numba.njit(parallel=True, cache=True)
-def valid_max_hwd(vol):
-    """max of vol[y, x, d] over x >= d (the in-image matches)."""
-    H, W, D = vol.shape
-    row_max = np.full(H, -np.inf, np.float64)
-    for y in prange(H):
-        m = -np.inf
-        for x in range(W):
-            for d in range(min(D, x + 1)):
-                if vol[y, x, d] > m:
-                    m = vol[y, x, d]
-        row_max[y] = m
-    return row_max.max()
-
-
-@numba.njit(parallel=True, cache=True)
 def fill_invalid_hwd(vol, fill):
     """vol[y, x, d] = fill for x < d."""
     H, W, D = vol.shape
@@ -217,26 +202,32 @@ def fill_invalid_hwd(vol, fill):
 @numba.njit(parallel=True, cache=True)
 def census_hwk(grey, window, bits_per_word):
     """Census codes (H, W, K) uint64 of a grey (H, W) image: same bit order as
-    :func:`stereonet.cost.census.census_transform` (row-major neighbours, centre skipped, border replicated)."""
+    :func:`stereonet.cost.census.census_transform` (row-major neighbours, centre skipped, border replicated).
+    The inner loop runs along x for one neighbour offset at a time (vectorisable)."""
     H, W = grey.shape
     r = window // 2
     n_bits = window * window - 1
     K = (n_bits + bits_per_word - 1) // bits_per_word
     out = np.zeros((H, W, K), np.uint64)
     for y in prange(H):
-        for x in range(W):
-            c = grey[y, x]
-            bit = 0
-            for dy in range(window):
-                yy = min(max(y + dy - r, 0), H - 1)
-                for dx in range(window):
-                    if dy == r and dx == r:
-                        continue
+        words = np.zeros((K, W), np.uint64)
+        centre = grey[y]
+        bit = 0
+        for dy in range(window):
+            src = grey[min(max(y + dy - r, 0), H - 1)]
+            for dx in range(window):
+                if dy == r and dx == r:
+                    continue
+                k = bit // bits_per_word
+                sh = np.uint64(bit - k * bits_per_word)
+                wk = words[k]
+                for x in range(W):
                     xx = min(max(x + dx - r, 0), W - 1)
-                    if grey[yy, xx] < c:
-                        k = bit // bits_per_word
-                        out[y, x, k] |= np.uint64(1) << np.uint64(bit - k * bits_per_word)
-                    bit += 1
+                    wk[x] |= np.uint64(src[xx] < centre[x]) << sh
+                bit += 1
+        for x in range(W):
+            for k in range(K):
+                out[y, x, k] = words[k, x]
     return out
 
 

@@ -23,7 +23,8 @@ Costs (``cost=`` of :func:`build_cost_volume`), images in [0, 1], colour channel
   in [0, 2), box-averaged over ``window``.
 
 Right positions outside the image (``x - d < 0``) are compared against the replicated border column while
-aggregating, and their final cost is set to ``max(valid costs of the volume) + 1`` — a large *finite* cost,
+aggregating, and their final cost is set to ``max(volume before this fill) + 1`` (so above every in-image
+cost) — a large *finite* cost,
 so WTA never picks them unless nothing else exists and SGM/DP recurrences stay finite.
 
 Backends: a vectorised torch path (differentiable, any device, chunked) and numba CPU kernels
@@ -96,7 +97,7 @@ def sweep_cost_volume(left_feat: torch.Tensor, right_feat: torch.Tensor, max_dis
         aggregate: optional ``(B, Dc, H, W) -> (B, Dc, H, W)`` (e.g. a box filter).
         finalize: optional ``(aggregated chunk, d0, d1) -> chunk`` (e.g. NCC normalisation).
         memory_budget: bytes for the intermediates of one chunk.
-        invalid: ``"max+1"`` (costs: largest valid cost + 1), ``"zero"`` (similarities) or ``"none"``.
+        invalid: ``"max+1"`` (costs: largest cost of the volume + 1), ``"zero"`` (similarities) or ``"none"``.
         out_dtype: output dtype (default: the left feature dtype if floating, else float32).
 
     Returns:
@@ -119,8 +120,7 @@ def sweep_cost_volume(left_feat: torch.Tensor, right_feat: torch.Tensor, max_dis
         if finalize is not None:
             vol = finalize(vol, d0, d1)
         if invalid == "max+1":
-            bad = _invalid_mask(d0, d1, w, vol.device)
-            m = vol.detach().masked_fill(bad, -math.inf).amax()
+            m = vol.detach().amax()
             running_max = m if running_max is None else torch.maximum(running_max, m)
         out[:, d0:d1] = vol
     if invalid == "none":
@@ -137,14 +137,14 @@ def fill_out_of_image(vol: torch.Tensor, fill: float | None = None) -> torch.Ten
 
     Args:
         vol: :math:`(B, D, H, W)`.
-        fill: value; default ``max(in-image entries) + 1``.
+        fill: value; default ``max(vol) + 1`` (before filling).
     Returns:
         :math:`(B, D, H, W)` (in place unless ``vol`` requires grad).
     """
     n_disp, w = vol.shape[1], vol.shape[-1]
     bad = _invalid_mask(0, n_disp, w, vol.device)  # Dx1xW
     if fill is None:
-        fill = float(vol.detach().masked_fill(bad, -math.inf).amax()) + 1.0
+        fill = float(vol.detach().amax()) + 1.0
     if vol.requires_grad:
         return vol.masked_fill(bad, fill)
     return vol.masked_fill_(bad, fill)
@@ -220,7 +220,7 @@ def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, co
         if cost == "adaptive":
             vol = K.multiwindow_hwd(vol, window) if mode == "multiwindow" else K.min_filter_hwd(vol, window)
         vols.append(vol)
-    fill = np.float32(max(K.valid_max_hwd(v) for v in vols) + 1.0)
+    fill = np.float32(max(float(v.max()) for v in vols) + 1.0)
     for v in vols:
         K.fill_invalid_hwd(v, fill)
     out = torch.from_numpy(np.stack(vols) if len(vols) > 1 else vols[0][None])  # BxHxWxD

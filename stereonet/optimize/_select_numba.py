@@ -14,28 +14,37 @@ def select_hwd(vol, method, ratio):
     """Args: vol (H, W, D) float32; method 0 = none, 1 = parabola, 2 = equiangular; ratio in [0, 1).
 
     Returns: disp (H, W) float32 (refined), min_cost (H, W) float32, unique (H, W) bool,
-    disp_right (H, W) float32 (integer-valued right-reference WTA).
+    disp_right (H, W) float32 (integer-valued right-reference WTA, ties to the smallest disparity).
     """
     H, W, D = vol.shape
     disp = np.empty((H, W), np.float32)
     min_cost = np.empty((H, W), np.float32)
-    unique = np.empty((H, W), np.bool_)
-    disp_right = np.empty((H, W), np.float32)
+    unique = np.ones((H, W), np.bool_)
+    disp_right = np.zeros((H, W), np.float32)
     keep = np.float32(1.0 - ratio)
     for y in prange(H):
+        right_best = np.empty(W, np.float32)
+        for x in range(W):
+            right_best[x] = vol[y, x, 0]  # d = 0
         for x in range(W):
             c = vol[y, x]
             best = c[0]
             bi = 0
             for d in range(1, D):
-                if c[d] < best:
-                    best = c[d]
+                v = c[d]
+                if v < best:
+                    best = v
                     bi = d
-            second = np.float32(np.inf)
-            for d in range(D):
-                if abs(d - bi) > 1 and c[d] < second:
-                    second = c[d]
-            unique[y, x] = best <= keep * second
+                xr = x - d  # the right-reference WTA: x ascending visits d ascending for a fixed xr
+                if xr >= 0 and v < right_best[xr]:
+                    right_best[xr] = v
+                    disp_right[y, xr] = d
+            if ratio > 0:
+                second = np.float32(np.inf)
+                for d in range(D):
+                    if abs(d - bi) > 1 and c[d] < second:
+                        second = c[d]
+                unique[y, x] = best <= keep * second
             min_cost[y, x] = best
             off = np.float32(0.0)
             if method > 0 and 0 < bi < D - 1:
@@ -49,13 +58,4 @@ def select_hwd(vol, method, ratio):
                     off = (cm - cp) / den
                     off = min(max(off, np.float32(-0.5)), np.float32(0.5))
             disp[y, x] = np.float32(bi) + off
-        for xr in range(W):
-            best = vol[y, xr, 0]
-            bi = 0
-            for d in range(1, min(D, W - xr)):
-                v = vol[y, xr + d, d]
-                if v < best:
-                    best = v
-                    bi = d
-            disp_right[y, xr] = bi
     return disp, min_cost, unique, disp_right

@@ -1,14 +1,17 @@
 """Numba kernels of the SGM path recurrence (see :mod:`stereonet.optimize.sgm` for the maths).
 
-Layout ``(H, W, D)`` float32 so the inner loop over disparities is contiguous. For each direction the
-image splits into disjoint chains (straight lines of the walk, starting where the predecessor leaves the
-image); the chains run in parallel with ``prange``, one parallel region per direction (no per-row
-barriers, which matter on a busy 2-core machine). Every path cost is computed with the
+Layout ``(H, W, D)`` float32 so the inner loop over disparities is contiguous (and vectorised). The
+directions are computed in two sweeps over the rows, top-down (left-to-right, and every direction with
+dy > 0) and bottom-up (the rest), so each sweep reads every cost row once and writes every S row once;
+the two sweeps run concurrently on two threads without any barrier (which matters on a busy 2-core
+machine), each into its own buffer, and are added at the end. Every path cost is computed with the
 same float32 operations as the torch reference (``C + (t - m)``), so the per-path costs are identical and
 the sums differ only by the order of additions.
 """
 
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -17,68 +20,82 @@ from numba import prange
 _INF = np.float32(np.inf)
 
 
-@numba.njit(inline="always")
+@numba.njit(fastmath=True, inline="always")
 def _step(c_row, prev, m, P1, pen2, out, s_row):
-    """out[d] = c[d] + (min(prev[d], prev[d±1] + P1, m + pen2) - m); s += out; returns min_d out."""
-    n = prev.shape[0]
+    """out = c + (min(prev[d], prev[d±1] + P1, m + pen2) - m); s += out; returns min_d out.
+
+    ``prev``/``out`` are padded: index ``d + 1`` holds disparity ``d``, indices 0 and D + 1 hold +inf, so
+    the loop is branch-free and vectorises (min is exact, so fastmath changes no result bit here except
+    through ``c + (t - m)``, which stays as written)."""
+    n = c_row.shape[0]
     big = m + pen2
+    for d in range(n):
+        t = min(min(prev[d + 1], prev[d] + P1), min(prev[d + 2] + P1, big))
+        out[d + 1] = c_row[d] + (t - m)
     new_min = _INF
     for d in range(n):
-        t = prev[d]
-        if d > 0:
-            a = prev[d - 1] + P1
-            if a < t:
-                t = a
-        if d < n - 1:
-            a = prev[d + 1] + P1
-            if a < t:
-                t = a
-        if big < t:
-            t = big
-        v = c_row[d] + (t - m)
-        out[d] = v
+        v = out[d + 1]
         s_row[d] += v
-        if v < new_min:
-            new_min = v
+        new_min = min(new_min, v)
     return new_min
 
 
-@numba.njit(parallel=True, cache=True)
-def _direction(C, S, P1, p2, dx, dy, starts):
-    """All paths of one direction: chains start at the pixels without predecessor (``starts`` (N, 2) as
-    (y, x)) and walk ``+ (dx, dy)``; chains are disjoint, so they run in parallel without races."""
+@numba.njit(fastmath=True, nogil=True, cache=True)
+def _sweep(C, S, P1, p2, dirs, downward):
+    """One sweep over the rows (top-down if ``downward`` else bottom-up) computing every direction of
+    ``dirs`` (G, 2) at once: each pixel's cost row is read once and its S row written once.
+
+    Directions with ``dy != 0`` must point along the sweep; a horizontal one must point along the column
+    order of the sweep (left-to-right top-down, right-to-left bottom-up). ``L``/``M`` keep three rows of
+    padded path costs and their minima per direction (enough for the |dy| = 2 knight moves)."""
     H, W, D = C.shape
-    for i in prange(starts.shape[0]):
-        prev = np.empty(D, np.float32)
-        cur = np.empty(D, np.float32)
-        y = starts[i, 0]
-        x = starts[i, 1]
-        m = _INF
-        for d in range(D):
-            v = C[y, x, d]
-            prev[d] = v
-            S[y, x, d] += v
-            if v < m:
-                m = v
-        y += dy
-        x += dx
-        while 0 <= y < H and 0 <= x < W:
-            m = _step(C[y, x], prev, m, P1, p2[y, x], cur, S[y, x])
-            prev, cur = cur, prev
-            y += dy
-            x += dx
+    G = dirs.shape[0]
+    L = np.full((G, 3, W, D + 2), _INF, np.float32)
+    M = np.empty((G, 3, W), np.float32)
+    for step in range(H):
+        y = step if downward else H - 1 - step
+        slot = y % 3
+        for k in range(W):
+            x = k if downward else W - 1 - k
+            c_row = C[y, x]
+            s_row = S[y, x]
+            for g in range(G):
+                dx = dirs[g, 0]
+                dy = dirs[g, 1]
+                yp = y - dy
+                xp = x - dx
+                out = L[g, slot, x]
+                if 0 <= yp < H and 0 <= xp < W:
+                    ps = yp % 3
+                    M[g, slot, x] = _step(c_row, L[g, ps, xp], M[g, ps, xp], P1, p2[g, y, x], out, s_row)
+                else:
+                    m = _INF
+                    for d in range(D):
+                        v = c_row[d]
+                        out[d + 1] = v
+                        s_row[d] += v
+                        m = min(m, v)
+                    M[g, slot, x] = m
 
 
-def chain_starts(h: int, w: int, dx: int, dy: int) -> np.ndarray:
-    """(N, 2) int64 (y, x) of the pixels whose predecessor ``(y - dy, x - dx)`` is outside the image."""
-    y, x = np.mgrid[0:h, 0:w]
-    yp, xp = y - dy, x - dx
-    outside = (yp < 0) | (yp >= h) | (xp < 0) | (xp >= w)
-    return np.ascontiguousarray(np.stack([y[outside], x[outside]], axis=1).astype(np.int64))
+@numba.njit(parallel=True, cache=True)
+def _add_into(a, b):
+    H = a.shape[0]
+    for y in prange(H):
+        a[y] += b[y]
+
+
+def sweep_groups(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the directions of the top-down sweep (dy > 0, or dy = 0 and dx > 0) and the bottom-up one."""
+    down = (dirs[:, 1] > 0) | ((dirs[:, 1] == 0) & (dirs[:, 0] > 0))
+    return np.nonzero(down)[0], np.nonzero(~down)[0]
 
 
 def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Aggregated cost ``S`` (H, W, D) float32 of a cost ``(H, W, D)`` float32.
+
+    The directions split into a top-down and a bottom-up sweep that run concurrently on two threads
+    (numba releases the GIL), each into its own buffer; the two are added at the end.
 
     Args:
         cost_hwd: C-contiguous float32 (H, W, D).
@@ -86,11 +103,19 @@ def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np
         p2: float32 (R, H, W) per-direction P2 maps.
         dirs: int64 (R, 2) ``(dx, dy)`` directions.
     """
-    h, w, _ = cost_hwd.shape
-    S = np.zeros_like(cost_hwd)
     P1 = np.float32(P1)
     p2 = np.ascontiguousarray(p2, dtype=np.float32)
-    for i in range(dirs.shape[0]):
-        dx, dy = int(dirs[i, 0]), int(dirs[i, 1])
-        _direction(cost_hwd, S, P1, p2[i], dx, dy, chain_starts(h, w, dx, dy))
-    return S
+    down, up = sweep_groups(dirs)
+    jobs = [(np.zeros_like(cost_hwd), np.ascontiguousarray(p2[g]), np.ascontiguousarray(dirs[g]), flag)
+            for g, flag in ((down, True), (up, False)) if g.size]
+    if len(jobs) == 1 or numba.get_num_threads() == 1:
+        for buf, p2g, dg, flag in jobs:
+            _sweep(cost_hwd, buf, P1, p2g, dg, flag)
+    else:
+        with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
+            list(pool.map(lambda j: _sweep(cost_hwd, *j[:1], P1, *j[1:]), jobs))
+    buffers = [j[0] for j in jobs]
+    total = buffers[0]
+    for other in buffers[1:]:
+        _add_into(total, other)
+    return total

@@ -10,7 +10,34 @@ import torch.nn.functional as F
 from stereonet.checks import StereoInputError, check_shape, check_window
 
 
-def median_filter(disp: torch.Tensor, size: int = 3, valid: torch.Tensor | None = None) -> torch.Tensor:
+@numba.njit(parallel=True, cache=True)
+def _median_kernel(disp: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
+    """Lower median of the valid samples of each size x size window (replicated border)."""
+    h, w = disp.shape
+    r = size // 2
+    out = np.empty_like(disp)
+    for y in numba.prange(h):
+        buf = np.empty(size * size, disp.dtype)
+        for x in range(w):
+            n = 0
+            for yy in range(y - r, y + r + 1):
+                yc = min(max(yy, 0), h - 1)
+                for xx in range(x - r, x + r + 1):
+                    xc = min(max(xx, 0), w - 1)
+                    if valid[yc, xc]:
+                        v = disp[yc, xc]
+                        j = n  # insertion sort
+                        while j > 0 and buf[j - 1] > v:
+                            buf[j] = buf[j - 1]
+                            j -= 1
+                        buf[j] = v
+                        n += 1
+            out[y, x] = buf[(n - 1) // 2] if n > 0 else disp[y, x]
+    return out
+
+
+def median_filter(disp: torch.Tensor, size: int = 3, valid: torch.Tensor | None = None,
+                  backend: str = "auto") -> torch.Tensor:
     """Median over a ``size x size`` window (border replicated).
 
     With ``valid`` given, only valid neighbours vote (a pixel without valid neighbours keeps its value);
@@ -20,21 +47,30 @@ def median_filter(disp: torch.Tensor, size: int = 3, valid: torch.Tensor | None 
         disp: :math:`(B, 1, H, W)`.
         size: odd window size.
         valid: optional bool :math:`(B, 1, H, W)`.
+        backend: ``"auto"`` (numba for CPU input without gradient), ``"torch"`` (unfold + sort) or ``"numba"``.
 
     Returns:
         :math:`(B, 1, H, W)`.
     """
     dims = check_shape(disp, ["B", "1", "H", "W"], "disp")
     check_window(size, "size")
+    if backend not in ("auto", "torch", "numba"):
+        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     if size == 1:
         return disp
+    if valid is not None:
+        check_shape(valid, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "valid")
+    if backend == "numba" or (backend == "auto" and disp.device.type == "cpu"
+                              and not (torch.is_grad_enabled() and disp.requires_grad)):
+        d = disp.detach().cpu().numpy()
+        v = np.ones(d.shape, np.bool_) if valid is None else valid.detach().cpu().numpy()
+        out = np.stack([_median_kernel(d[b, 0], v[b, 0], size) for b in range(d.shape[0])])[:, None]
+        return torch.from_numpy(out).to(disp.device)
     r = size // 2
-    h, w = dims["H"], dims["W"]
     patches = F.unfold(F.pad(disp, (r, r, r, r), mode="replicate"), size)  # Bx(size*size)x(H*W)
     if valid is None:
         med = patches.median(dim=1).values
         return med.view_as(disp)
-    check_shape(valid, [str(dims["B"]), "1", str(h), str(w)], "valid")
     vpatch = F.unfold(F.pad(valid.to(disp.dtype), (r, r, r, r), mode="replicate"), size) > 0.5
     n_valid = vpatch.sum(1, keepdim=True)
     # invalid samples -> +inf, so the k-th smallest of the valid ones is the median (lower median)

@@ -26,7 +26,11 @@ from stereonet.types import StereoOutput
 BM_DEFAULTS = dict(subpixel="parabola", uniqueness=0.1, lr_tol=1.0, median=0, speckle_size=0,
                    speckle_diff=1.0, fill=False)
 
-SGM_DEFAULTS = dict(cost="census", census_window=5, window=1, P1=1.0, P2=8.0, p2_alpha=0.0, paths=8,
+# Chosen on the six real pairs of ../shared/data (bad-2 after the textbook fill, see the module doc):
+# census 7x7 (48 bits, pixelwise), P1 = 2 and P2 = 48 Hamming bits with P2 lowered across intensity edges
+# (P2 / (1 + 20 |dI|), dI in [0, 1], never below P1), 8 paths, parabola, uniqueness 5 %, LR tolerance 1 px,
+# 3x3 median over valid pixels, speckles < 100 px (steps <= 1 px) removed.
+SGM_DEFAULTS = dict(cost="census", census_window=7, window=1, P1=2.0, P2=48.0, p2_alpha=20.0, paths=8,
                     subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3, speckle_size=100,
                     speckle_diff=1.0, fill=False)
 
@@ -100,7 +104,7 @@ bm_adaptive = _bm("bm-adaptive", "adaptive", 7,
 
 
 @register("sgm", kind="classical",
-          description="Semi-global matching: census 5x5, 8 paths, P1/P2, parabola, uniqueness, LR, median, speckle")
+          description="Semi-global matching: census 7x7, 8 paths, edge-adapted P2, parabola, LR, median, speckle")
 def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
     """Semi-global matching (Hirschmüller 2008) on a census (default) or any ``cost`` volume.
 

@@ -123,3 +123,13 @@ def test_median_and_speckle():
 def test_lr_check_shapes_raise():
     with pytest.raises(StereoInputError, match="disp_right"):
         left_right_check(torch.zeros(1, 1, 4, 5), torch.zeros(1, 1, 4, 6))
+
+
+@pytest.mark.parametrize("with_valid", [False, True])
+def test_median_numba_equals_torch(with_valid):
+    g = torch.Generator().manual_seed(4)
+    disp = torch.rand(2, 1, 13, 17, generator=g) * 10
+    valid = torch.rand(2, 1, 13, 17, generator=g) > 0.4 if with_valid else None
+    for size in (3, 5):
+        torch.testing.assert_close(median_filter(disp, size, valid, backend="numba"),
+                                   median_filter(disp, size, valid, backend="torch"))
