@@ -82,6 +82,7 @@ def render_cloud(ply: Path, png: Path, max_points: int = 60000) -> None:
 
 
 def main() -> int:
+    from stereonet.bench import shrink_copy
     from stereonet.io import read_array, write_image
 
     OUT.mkdir(parents=True, exist_ok=True)
@@ -107,7 +108,7 @@ def main() -> int:
             render_cloud(work / "out/rig/cloud.ply", OUT / "rig_cloud.png")
         panels = sorted(work.glob("out/eval/*/*.png"))
         if panels:
-            shutil.copyfile(panels[0], OUT / "eval_panel.png")
+            shrink_copy(panels[0], OUT / "eval_panel.jpg")
         if (work / "out/eval/bad2.png").is_file():
             shutil.copyfile(work / "out/eval/bad2.png", OUT / "eval_bad2.png")
     print(f"pictures written to {OUT}")

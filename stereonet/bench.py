@@ -33,12 +33,14 @@ from stereonet.cli.eval import (
     parse_methods,
     plot_bad2,
     run_evaluation,
+    safe_name,
 )
 
 PROG = "python -m stereonet.bench"
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE = "opencv-sgbm"
 SYNTHETIC_PAIRS = 8
+PANEL_DATASETS = ("middlebury2003", "kitti2015")  # + the synthetic set: one picture of each in the report
 
 
 def median_of(pairs: Sequence[PairResult], key: str, raw: bool = False) -> float | None:
@@ -121,8 +123,9 @@ def plot_speed_accuracy(rows: Sequence[dict], group: str, path: Path) -> None:
     plt.close(fig)
 
 
-def _copy_panel(src: Path, dst: Path, max_width: int = 1800) -> bool:
-    """Copy a per-pair panel into docs, shrunk to ``max_width`` (area interpolation); False when absent."""
+def shrink_copy(src: Path, dst: Path, max_width: int = 1600) -> bool:
+    """Copy a picture (format by ``dst``'s extension), shrunk to ``max_width`` (area interpolation);
+    False when ``src`` is absent."""
     import cv2
 
     from stereonet.io import read_array, write_image
@@ -198,12 +201,11 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
     for d in (d for ds in groups.values() for d in ds):
         parts += [f"### {d}", "", markdown_table(per_dataset, d), ""]
     shown = []
-    for d in (d for ds in groups.values() for d in ds):
-        folder = plots_tmp / "".join(c if c.isalnum() or c in "-_." else "_" for c in d).strip("_")
-        first = sorted(folder.glob("*.png"))[:1] if folder.is_dir() else []
-        for src in first:
-            dst = docs / f"panel_{folder.name}_{src.stem}.png"
-            if _copy_panel(src, dst):
+    for d in (d for ds in groups.values() for d in ds if d in PANEL_DATASETS or d.startswith("synthetic")):
+        folder = plots_tmp / safe_name(d)
+        for src in sorted(folder.glob("*.png"))[:1] if folder.is_dir() else []:
+            dst = docs / f"panel_{folder.name}_{src.stem}.jpg"
+            if shrink_copy(src, dst):
                 shown.append((d, src.stem, dst))
     if shown:
         parts += ["## What the maps look like", "",

@@ -248,7 +248,7 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                     outs[m] = out
                     bar.update(1)
                 if plots is not None:
-                    _plot_pair(plots / _safe(label) / f"{_safe(name)}.png", item, outs, md)
+                    _plot_pair(plots / safe_name(label) / f"{safe_name(name)}.png", item, outs, md)
     result.rows = aggregate(result.pairs, methods, [label for label, _ in datasets])
     if plots is not None:
         plot_bad2(result.rows, plots / "bad2.png")
@@ -351,7 +351,8 @@ def format_table(rows: Sequence[dict]) -> str:
     return "\n".join(out + notes + [legend])
 
 
-def _safe(name: str) -> str:
+def safe_name(name: str) -> str:
+    """A file-name-safe version of a dataset or pair name (what --plots uses for folders and files)."""
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip("_") or "pair"
 
 
