@@ -36,7 +36,7 @@ def test_bench_writes_report(tmp_path, monkeypatch):
     for name in ("speed_accuracy_synthetic.png", "bad2_per_dataset.png"):
         assert (docs / name).stat().st_size > 0
         assert f"(docs/bench/{name})" in text
-    assert list(docs.glob("panel_*.png"))
+    assert list(docs.glob("panel_*.jpg"))
 
 
 def test_bench_bad_method_is_one_line(capsys):
