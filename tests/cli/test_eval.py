@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -182,3 +183,29 @@ def test_budget_skips_remaining_pairs():
     row = result.rows[0]
     assert row["pairs"] == 1 and row["skipped"] == 2 and row["failed"] == 0
     assert "skipped (time budget)" in ev.format_table(result.rows)
+
+
+def test_middlebury2014_folder_end_to_end(tmp_path):
+    """Issue 2, item 8: eval.py --methods opencv-bm,opencv-sgbm --data middlebury2014:DIR --json out.json,
+    through the real dataset reader, on two tiny scenes written in the Middlebury 2014 layout."""
+    from stereonet.io import write_disparity_pfm, write_image
+
+    root = tmp_path / "mb2014"
+    for i, item in enumerate(tiny_dataset("mb2014")):
+        scene = root / f"scene{i}"
+        scene.mkdir(parents=True)
+        write_image(scene / "im0.png", item["left"])
+        write_image(scene / "im1.png", item["right"])
+        write_disparity_pfm(scene / "disp0GT.pfm", item["disparity"][0], item["valid"][0])
+        mask = np.where(item["occlusion"][0].numpy(), 128, 255).astype(np.uint8)
+        write_image(scene / "mask0nocc.png", mask)
+    out = tmp_path / "out.json"
+    code = ev.main(["--methods", "opencv-bm,opencv-sgbm", "--data", f"middlebury2014:{root}", "--json", str(out),
+                    "--no-progress"])
+    assert code == 0
+    rows = json.loads(out.read_text())
+    assert [r["method"] for r in rows] == ["opencv-bm", "opencv-sgbm"]
+    for r in rows:
+        assert ROW_KEYS <= set(r) and r["dataset"] == "middlebury2014:mb2014" and r["pairs"] == 2
+        assert r["bad2_noc"] is not None and r["bad2_noc"] <= r["bad2"] + 1e-9
+        assert 0 < r["density"] < 100  # invalid OpenCV pixels are reported, not hidden
