@@ -40,27 +40,24 @@ def _send(h, slope, truncation, out):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def bp_level(cost, from_left, from_right, from_up, from_down, slopes, truncation, iterations):  # pragma: no cover
-    """Run ``iterations`` synchronous min-sum updates in place.
+    """Run ``iterations`` synchronous min-sum updates; returns the four final message arrays.
 
     cost and messages ``(B, H, W, D)``; ``slopes (B, H, W, 4)`` = λ·w to the right, left, down, up neighbour.
+    The message arrays passed in are reused as buffers (overwritten).
     """
-    B, H, W, D = cost.shape
     # two buffer sets, swapped each iteration; border slots that receive no message stay 0
-    src_l, src_r, src_u, src_d = from_left.copy(), from_right.copy(), from_up.copy(), from_down.copy()
     new_left = np.zeros_like(from_left)
     new_right = np.zeros_like(from_right)
     new_up = np.zeros_like(from_up)
     new_down = np.zeros_like(from_down)
     for _ in range(iterations):
-        _bp_iteration(cost, src_l, src_r, src_u, src_d, new_left, new_right, new_up, new_down, slopes, truncation)
-        src_l, new_left = new_left, src_l
-        src_r, new_right = new_right, src_r
-        src_u, new_up = new_up, src_u
-        src_d, new_down = new_down, src_d
-    from_left[:] = src_l
-    from_right[:] = src_r
-    from_up[:] = src_u
-    from_down[:] = src_d
+        _bp_iteration(cost, from_left, from_right, from_up, from_down, new_left, new_right, new_up, new_down,
+                      slopes, truncation)
+        from_left, new_left = new_left, from_left
+        from_right, new_right = new_right, from_right
+        from_up, new_up = new_up, from_up
+        from_down, new_down = new_down, from_down
+    return from_left, from_right, from_up, from_down
 
 
 @njit(parallel=True, cache=True)

@@ -76,16 +76,15 @@ def _run_level(cost: torch.Tensor, messages: list[torch.Tensor], slopes: list[to
 
 def _run_level_numba(cost: torch.Tensor, messages: list[torch.Tensor], slopes: list[torch.Tensor],
                      truncation: float, iterations: int) -> list[torch.Tensor]:
-    """Same as :func:`_run_level` through the numba kernel (pixel-major copies, CPU)."""
+    """Same as :func:`_run_level` through the numba kernel, on *pixel-major* CPU tensors (B, H, W, D).
+
+    ``messages`` are consumed (their memory is reused); ``slopes`` stay (B, 1, H, W).
+    """
     from stereonet.optimize._bp_numba import bp_level
 
-    def pixel_major(x: torch.Tensor) -> torch.Tensor:
-        return x.detach().permute(0, 2, 3, 1).to("cpu").contiguous()  # BxHxWxD
-
-    arrays = [pixel_major(m).numpy() for m in messages]
-    slope_array = pixel_major(torch.cat(slopes, dim=1)).numpy()  # BxHxWx4
-    bp_level(pixel_major(cost).numpy(), *arrays, slope_array, float(truncation), int(iterations))
-    return [torch.from_numpy(a).permute(0, 3, 1, 2).to(cost.device) for a in arrays]
+    slope_array = torch.cat(slopes, dim=1).permute(0, 2, 3, 1).contiguous().numpy()  # BxHxWx4
+    out = bp_level(cost.numpy(), *(m.numpy() for m in messages), slope_array, float(truncation), int(iterations))
+    return [torch.from_numpy(a) for a in out]
 
 
 def _pool_sum(x: torch.Tensor) -> torch.Tensor:
@@ -146,20 +145,29 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                         F.avg_pool2d(F.pad(d, (0, d.shape[-1] % 2, 0, d.shape[-2] % 2), mode="replicate"), 2)))
     truncation_eff = min(truncation, float(cost.shape[1]))
     messages: list[torch.Tensor] | None = None
+    # the numba kernel works pixel-major (B, H, W, D) on CPU: spatial dims 1, 2 instead of 2, 3
+    spatial = (1, 2) if use_numba else (2, 3)
     for level in range(levels - 1, -1, -1):
         c, r, d = pyramid[level]
+        if use_numba:
+            c = c.permute(0, 2, 3, 1).to("cpu").contiguous()  # BxHxWxD
         if messages is None:
             messages = [torch.zeros_like(c) for _ in range(4)]
         else:  # each coarse pixel's messages initialise its 2x2 children
-            hh, ww = c.shape[-2:]
-            messages = [m.repeat_interleave(2, dim=-2).repeat_interleave(2, dim=-1)[..., :hh, :ww].contiguous()
-                        for m in messages]
+            hh, ww = (c.shape[i] for i in spatial)
+            messages = [m.repeat_interleave(2, dim=spatial[0]).repeat_interleave(2, dim=spatial[1])
+                        .narrow(spatial[0], 0, hh).narrow(spatial[1], 0, ww).contiguous() for m in messages]
         slopes = _slopes(smoothness, r, d)
         if use_numba:
             messages = _run_level_numba(c, messages, slopes, truncation_eff, iterations)
         else:
             messages = _run_level(c, messages, slopes, truncation_eff, iterations)
-    beliefs = cost + sum(messages)
+    beliefs = c + messages[0]
+    for m in messages[1:]:
+        beliefs += m
+    del messages
+    if use_numba:
+        beliefs = beliefs.permute(0, 3, 1, 2).to(cost.device)  # BxDxHxW view
     labels = beliefs.argmin(dim=1, keepdim=True)
     energy = grid_energy(cost, labels, smoothness, truncation, weights_right, weights_down)
     return BPResult(labels.to(cost.dtype), beliefs, energy)
