@@ -7,11 +7,13 @@ IJCV 2006:
 * message update ``m_{p→q}(d) = min_d' [h_p(d') + λ w_pq min(|d - d'|, T)]`` with
   ``h_p = C_p + Σ_{s ∈ N(p) \\ q} m_{s→p}``, computed in O(D) by the linear distance transform
   (:func:`~stereonet.optimize._global_mrf.truncated_linear_min_convolution`), messages normalised to min 0;
-* synchronous ("flooding") updates of all messages of the whole grid at once, vectorised in torch;
+* synchronous ("flooding") updates of all messages of the whole grid at once: a numba kernel parallel over
+  rows on CPU (``backend="auto"``), tested equal to the vectorised torch reference (``backend="torch"``);
 * coarse-to-fine: data costs summed over 2×2 blocks per level, messages of a coarse level initialise the
   four children at the next finer level, so few iterations per level propagate information far.
 
-Cost: O(levels · iterations · 4 · B·D·H·W) time, about 7 volumes of memory.
+Cost: O(iterations · 4 · B·D·H·W) time per level (the coarse levels add a third), about 11 volumes of
+``B·D·H·W`` of memory at the finest level (cost, its pixel-major copy, 4 messages double-buffered, beliefs).
 """
 
 from __future__ import annotations
