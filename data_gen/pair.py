@@ -107,9 +107,9 @@ def apply_camera_response(img: torch.Tensor, params: dict, photometric: bool = T
             gain = gain * (1 - v * 0.5 * (xx + yy))  # 3xHxW
         img = (img * gain + params["bias"]).clamp(0.0, 1.0) ** params["gamma"]
     if noise and params["noise"] > 0:
-        g = torch.Generator().manual_seed(params["noise_seed"])
+        gauss = np.random.default_rng(params["noise_seed"]).standard_normal(tuple(img.shape), dtype=np.float32)
         sigma = params["noise"] * torch.sqrt(0.25 + img)
-        img = img + sigma * torch.randn(img.shape, generator=g, dtype=img.dtype)
+        img = img + sigma * torch.from_numpy(gauss).to(img.dtype)
     return img.clamp(0.0, 1.0)
 
 

@@ -23,6 +23,7 @@ from data_gen.primitives import Plane
 from data_gen.scene import Scene
 
 SPECULAR_MASK_THRESHOLD = 0.02  # specular radiance above which a pixel counts as view-dependent
+USE_KERNELS = True  # render_view / visible_from use the numba kernels of data_gen._kernels by default
 
 
 class RayHits(NamedTuple):
@@ -239,18 +240,29 @@ def albedo_of_hits(scene: Scene, hits: RayHits, dirs: torch.Tensor, spacing: flo
 
 
 def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: float = 1e-4,
-                 projected: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+                 projected: tuple[torch.Tensor, torch.Tensor] | None = None, compiled: bool | None = None
+                 ) -> torch.Tensor:
     """Bool :math:`(N,)`: True where world ``points`` :math:`(N, 3)` are seen by ``camera``: in front of it,
     projecting inside its image, and not hidden by a nearer surface of ``scene``.
 
     Rays run from the camera centre to each point (t = 1 at the point); a hit with ``t < 1 - rel_eps``
     hides it. Infinite planes hide a point exactly when it lies on the other side from the camera.
-    ``projected``: ``camera.project(points)`` if already computed.
+    ``projected``: ``camera.project(points)`` if already computed; ``compiled``: numba kernel (default
+    ``USE_KERNELS``) or torch reference.
     """
     pix, z = camera.project(points) if projected is None else projected
     w, h = camera.size
     inside = (z > 0) & (pix[:, 0] >= -0.5) & (pix[:, 0] <= w - 0.5) & (pix[:, 1] >= -0.5) & (pix[:, 1] <= h - 0.5)
     centre = camera.center
+    if USE_KERNELS if compiled is None else compiled:
+        from data_gen._kernels import hidden_points, pack_scene
+
+        packed = pack_scene(scene, camera)
+        hidden = np.empty(points.shape[0], dtype=np.bool_)
+        hidden_points(np.ascontiguousarray(points.double().numpy()), np.ascontiguousarray(pix.double().numpy()),
+                      np.asarray(centre, dtype=np.float64), packed["objs"], packed["edges"], packed["blobs"],
+                      packed["boxes"], float(rel_eps), hidden)
+        return inside & ~torch.from_numpy(hidden)
     hidden = torch.zeros(points.shape[0], dtype=torch.bool)
     ys_sorted, order = torch.sort(pix[:, 1].contiguous())  # objects are tested on the rows they cover
     xs_sorted = pix[order, 0]
@@ -371,14 +383,64 @@ def _pixel_rays(camera: Camera, x: torch.Tensor, y: torch.Tensor) -> torch.Tenso
     return (d_cam @ torch.as_tensor(camera.R)).to(x.dtype)  # rows R^T d_cam
 
 
+def _kernel_trace(scene: Scene, camera: Camera, packed: dict, dirs: np.ndarray, pix: np.ndarray, spacing: float,
+                  specular: bool) -> dict[str, np.ndarray]:
+    """Run :func:`data_gen._kernels.trace_shade` on rays ``dirs (N, 3)`` through pixels ``pix (N, 2)``."""
+    from data_gen._kernels import trace_shade
+
+    n = dirs.shape[0]
+    out = dict(t=np.empty(n), ids=np.empty(n, dtype=np.int64), points=np.empty((n, 3)), normals=np.empty((n, 3)),
+               rgb=np.empty((n, 3)), spec=np.empty(n))
+    trace_shade(np.ascontiguousarray(dirs, dtype=np.float64), np.ascontiguousarray(pix, dtype=np.float64),
+                np.asarray(camera.center, dtype=np.float64), packed["objs"], packed["edges"], packed["blobs"],
+                packed["mats"], packed["boxes"], packed["bank"], float(spacing),
+                np.asarray(scene.light_dir, dtype=np.float64), float(scene.ambient), bool(specular),
+                out["t"], out["ids"], out["points"], out["normals"], out["rgb"], out["spec"])
+    return out
+
+
+def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, dtype: torch.dtype) -> dict:
+    """:func:`render_view` with the compiled kernels (same algorithm, float64 inside)."""
+    from data_gen._kernels import pack_scene
+
+    w, h = camera.size
+    packed = pack_scene(scene, camera)
+    grid = camera.grid_rays(1, torch.float64)
+    ys, xs = np.meshgrid(grid.ys_np, grid.xs_np, indexing="ij")
+    pix = np.stack([xs.ravel(), ys.ravel()], axis=-1)  # HWx2
+    f = float(camera.K[0, 0])
+    out = _kernel_trace(scene, camera, packed, grid.dirs().reshape(-1, 3).numpy(), pix, 1.0 / f, specular)
+    ids = torch.from_numpy(out["ids"]).reshape(h, w)
+    normals = torch.from_numpy(out["normals"]).to(dtype)
+    rgb = out["rgb"]
+    edges = edge_pixels(ids, normals.reshape(h, w, 3)) if s > 1 else torch.zeros_like(ids, dtype=torch.bool)
+    ey, ex = torch.nonzero(edges, as_tuple=True)
+    if ey.numel():
+        offsets = (torch.arange(s, dtype=torch.float64) + 0.5) / s - 0.5
+        oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
+        sx = (ex.double()[:, None] + ox.reshape(1, -1)).reshape(-1)  # (M*s*s,)
+        sy = (ey.double()[:, None] + oy.reshape(1, -1)).reshape(-1)
+        dirs = _pixel_rays(camera, sx, sy).numpy()
+        sub = _kernel_trace(scene, camera, packed, dirs, torch.stack([sx, sy], -1).numpy(), 1.0 / (s * f), specular)
+        rgb[(ey * w + ex).numpy()] = sub["rgb"].reshape(-1, s * s, 3).mean(1)
+    img = torch.from_numpy(rgb).to(dtype).reshape(h, w, 3).permute(2, 0, 1)  # 3xHxW
+    return {"image": img.clamp(0.0, 1.0).contiguous(), "depth": torch.from_numpy(out["t"]).to(dtype).reshape(h, w),
+            "ids": ids, "points": torch.from_numpy(out["points"]).to(dtype), "normals": normals,
+            "specular": torch.from_numpy(out["spec"]).to(dtype).reshape(h, w), "edges": edges}
+
+
 def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bool = True,
-                extra_light_fn: Callable | None = None, dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
+                extra_light_fn: Callable | None = None, dtype: torch.dtype = torch.float32,
+                compiled: bool | None = None) -> dict[str, torch.Tensor]:
     """Render one camera.
 
     One ray through each pixel centre gives the geometry (exact at pixel centres) and the shading of
     pixels inside a surface (textures are band-limited to the pixel footprint, mip-map style). Pixels on
     an object boundary (an 8-neighbour sees another object) are re-rendered with ``supersample x
     supersample`` rays and averaged (adaptive anti-aliasing).
+
+    ``compiled``: use the numba kernels of :mod:`data_gen._kernels` (default: ``USE_KERNELS``, and only
+    without ``extra_light_fn``) or the torch reference (False).
 
     Returns a dict with ``image`` :math:`(3, H, W)` radiance clipped to [0, 1], ``depth`` :math:`(H, W)`
     (z in this camera's frame, inf = miss), ``ids`` :math:`(H, W)` long, ``points`` and ``normals``
@@ -388,6 +450,10 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     s = int(supersample)
     if s < 1:
         raise ValueError(f"supersample: expected an integer >= 1, got {supersample}")
+    if compiled is None:
+        compiled = USE_KERNELS
+    if compiled and extra_light_fn is None:
+        return _render_view_kernels(scene, camera, s, specular, dtype)
     w, h = camera.size
     grid = camera.grid_rays(1, dtype)
     t, ids, _ = raycast_grid(scene, grid)
