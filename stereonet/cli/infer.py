@@ -1,7 +1,7 @@
 """infer.py: a photo pair in; disparity, depth and a coloured point cloud out.
 
     python infer.py LEFT RIGHT -o OUT [--method NAME] [--max-disp N] [--calib FILE | --uncalibrated]
-                    [--checkpoint CKPT] [--overwrite] [--device cpu]
+                    [--checkpoint CKPT] [--overwrite] [--device cpu] [--fill]
 
 Writes ``OUT/disparity.pfm`` (float, ``inf`` = invalid, left-referenced), ``OUT/disparity.png`` (colour),
 ``OUT/info.json`` (method, disparity range, timing, what was rectified) and, with a calibration,
@@ -175,7 +175,8 @@ def check_calibration_size(calib, left: torch.Tensor, path: Path) -> None:
 
 
 def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp: int | None,
-                 calib, calib_path: Path | None, uncalibrated: bool, device: torch.device) -> dict:
+                 calib, calib_path: Path | None, uncalibrated: bool, device: torch.device,
+                 fill: bool = False) -> dict:
     """Run one pair and write its files into ``out_dir`` (an existing, private folder). Returns the info."""
     from stereonet import matchers, viz
     from stereonet.io import write_disparity_pfm, write_image, write_ply
@@ -224,6 +225,11 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     with torch.no_grad(), Stopwatch() as clock:
         out = fn(left, right, int(max_disp))
     info["seconds"] = clock.seconds
+    if fill:
+        from stereonet.cli.eval import apply_fill
+
+        info["density_before_fill"] = 100.0 * float(out.valid.float().mean())
+        out = apply_fill(out)
     disp, valid = out.disparity[0, 0].float().cpu(), out.valid[0, 0].cpu()
     info["density"] = 100.0 * float(valid.float().mean())
     write_disparity_pfm(out_dir / "disparity.pfm", disp, valid)
@@ -259,6 +265,8 @@ def build_parser() -> OneLineParser:
     p.add_argument("--checkpoint", type=Path, default=None, help="weights for a learned method")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    p.add_argument("--fill", action="store_true",
+                   help="fill invalid pixels (occlusions, LR failures) along scanlines for a dense map")
     p.add_argument("--no-progress", action="store_true", help="no progress bar in batch mode")
     return p
 
@@ -330,7 +338,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             pair_dir.mkdir(exist_ok=True)
             try:
                 process_pair(pair, pair_dir, method, options, args.max_disp, calib, args.calib,
-                             args.uncalibrated, device)
+                             args.uncalibrated, device, args.fill)
             except (*USER_ERRORS, ImportError, RuntimeError) as e:
                 if not batch:
                     raise

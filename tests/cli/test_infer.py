@@ -87,6 +87,17 @@ def test_no_calibration_no_depth_and_auto_max_disp(pair_files, tmp_path, capsys)
     assert info["max_disp"] % 16 == 0 and 16 <= info["max_disp"] <= 64
 
 
+def test_fill_makes_dense(pair_files, tmp_path, capsys):
+    from stereonet.io import read_disparity
+
+    code, err = run_main(capsys, *pair_files, "-o", tmp_path / "out", "--method", "opencv-bm", "--max-disp", "16",
+                         "--fill")
+    assert code == 0, err
+    _, valid = read_disparity(tmp_path / "out" / "disparity.pfm")
+    info = json.loads((tmp_path / "out" / "info.json").read_text())
+    assert valid.all() and info["density"] == 100 and info["density_before_fill"] < 100
+
+
 def test_estimate_max_disp_from_offsets():
     pl = np.array([[50.0 + i, 10.0 + i] for i in range(20)])
     pr = pl - np.array([[20.0, 0.0]])
