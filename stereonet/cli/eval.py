@@ -86,20 +86,27 @@ def parse_methods(text: str, skipped: list[str] | None = None) -> list[str]:
     return out
 
 
-def expand_data_specs(text: str, shared: Path | None = None) -> list[str]:
-    """Split ``SPEC[,SPEC...]`` and expand ``real`` into one spec per dataset folder in ../shared/data."""
+def expand_data_specs(text: str, shared: Path | None = None, notes: list[str] | None = None) -> list[str]:
+    """Split ``SPEC[,SPEC...]`` and expand ``real`` into one spec per dataset folder in ../shared/data.
+
+    ``real`` is optional data: when the folder is missing and other specs are given, it is left out and a
+    note is appended to ``notes`` (so ``make demo`` runs on a machine without it); alone, it is an error.
+    """
+    parts = [s.strip() for s in text.split(",") if s.strip()]
     specs: list[str] = []
-    for s in (s.strip() for s in text.split(",")):
-        if not s:
-            continue
+    for s in parts:
         if s == "real":
             if shared is None:
                 from stereonet.data import shared_data_dir
 
                 shared = shared_data_dir()
             if shared is None or not shared.is_dir():
-                raise FileNotFoundError(f"--data real: no shared real data folder ({shared or '../shared/data'}; "
-                                        "set STEREONET_SHARED_DATA)")
+                missing = f"no shared real data folder ({shared or '../shared/data'}; set STEREONET_SHARED_DATA)"
+                if parts == ["real"]:
+                    raise FileNotFoundError(f"--data real: {missing}")
+                if notes is not None:
+                    notes.append(f"real left out: {missing}")
+                continue
             specs += [f"{k}:{shared / k}" for k in REAL_KINDS if (shared / k).is_dir()]
         else:
             specs.append(s)
@@ -435,7 +442,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         methods = parse_methods(args.methods, skipped)
         if skipped:
             print(f"{PROG}: note: skipping {', '.join(skipped)} (trained weights missing)", file=sys.stderr)
-        specs = expand_data_specs(args.data)
+        notes: list[str] = []
+        specs = expand_data_specs(args.data, notes=notes)
+        for note in notes:
+            print(f"{PROG}: note: {note}", file=sys.stderr)
         shard = parse_shard(args.shard)
         if args.max_disp is not None and args.max_disp <= 0:
             raise ValueError(f"--max-disp: expected a positive integer, got {args.max_disp}")

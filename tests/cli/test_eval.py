@@ -56,6 +56,9 @@ def test_expand_data_specs(tmp_path):
     assert ev.dataset_label("folder:/x/my_pairs/") == "folder:my_pairs"
     with pytest.raises(FileNotFoundError, match="real"):
         ev.expand_data_specs("real", shared=tmp_path / "absent")
+    notes: list[str] = []  # beside other specs, missing real data is left out with a note (make demo)
+    assert ev.expand_data_specs("synthetic:2,real", shared=tmp_path / "absent", notes=notes) == ["synthetic:2"]
+    assert len(notes) == 1 and "real" in notes[0]
 
 
 @pytest.mark.parametrize("text, expected", [(None, (0, 1)), ("1/3", (1, 3))])
@@ -155,7 +158,7 @@ def test_failing_method_is_reported_not_fatal(monkeypatch):
 
 
 def test_json_rows_written(tmp_path, monkeypatch):
-    monkeypatch.setattr(ev, "expand_data_specs", lambda text: ["fake"])
+    monkeypatch.setattr(ev, "expand_data_specs", lambda text, **k: ["fake"])
     real_run = ev.run_evaluation
     monkeypatch.setattr(ev, "run_evaluation", lambda *a, **k: real_run(*a, **{**k, "load": tiny_dataset}))
     out = tmp_path / "r.json"
