@@ -42,8 +42,14 @@ Units are millimetres; the left camera is the world frame.
   ``extra_light_fn(points (N, 3), normals (N, 3), ids (N,)) -> (N,) | (N, 3)`` is extra irradiance added to
   the diffuse term (multiplied by the albedo): a projector pattern is ``pattern(projector.project(points))``
   times ``max(0, n . l_p)``, masked by ``visible_from(scene, projector, points)``.
-* :func:`apply_camera_response` (blur, gain/bias/gamma, noise) and :class:`Material` ``.albedo(uv)``
-  (textures: dead-leaves, 1/f noise, Voronoi bank textures; stripes, grids, checkers, weak, flat).
+* :func:`apply_camera_response` (blur, vignetting, gain/bias/gamma, noise) and :class:`Material`
+  ``.albedo(uv)`` (textures: dead-leaves, 1/f noise, Voronoi bank textures; stripes, grids, checkers, weak,
+  flat).
+
+Speed: :func:`render_view` and :func:`visible_from` run compiled numba kernels (:mod:`data_gen._kernels`, one
+ray at a time, float64) by default; ``compiled=False`` (or ``data_gen.render.USE_KERNELS = False``) selects the
+vectorized torch reference they are tested against. An ``extra_light_fn`` always uses the torch path.
+Rendering runs torch single-threaded; parallelize over pairs (DataLoader workers).
 """
 
 from data_gen.camera import Camera, GridRays, PointRays
