@@ -199,6 +199,19 @@ def test_too_few_matches_is_refused(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_script_wrapper_in_process(pair_files, tmp_path, monkeypatch):
+    """infer.py (the top-level script) calls the same main and exits with its code."""
+    import runpy
+
+    monkeypatch.setattr(sys, "argv", ["infer.py", *map(str, pair_files), "-o", str(tmp_path / "o"), "--method",
+                                      "opencv-bm", "--max-disp", "16"])
+    with pytest.raises(SystemExit) as exit_info:
+        runpy.run_path(str(REPO / "infer.py"), run_name="__main__")
+    assert exit_info.value.code == 0
+    assert (tmp_path / "o" / "disparity.png").is_file()
+
+
+@pytest.mark.slow
 def test_script_wrapper_runs(pair_files, tmp_path):
     r = subprocess.run([sys.executable, str(REPO / "infer.py"), *map(str, pair_files), "-o", str(tmp_path / "o"),
                         "--method", "opencv-bm", "--max-disp", "16"], capture_output=True, text=True, cwd=REPO,
