@@ -105,9 +105,12 @@ def scanline_dp(cost: torch.Tensor, occlusion_cost: float, backend: str = "auto"
     return ScanlineDPResult(disparity.contiguous(), occlusion.contiguous(), energy.view(b, h).to(cost.device))
 
 
-def _scanline_dp_reference(rows: torch.Tensor, occlusion_cost: float
+def _scanline_dp_reference(rows: torch.Tensor, occlusion_cost: float, moves: list | None = None
                            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Torch reference of the three-case DP, vectorised over scanlines. ``rows`` (R, D, W) float64."""
+    """Torch reference of the three-case DP, vectorised over scanlines. ``rows`` (R, D, W) float64.
+
+    When ``moves`` is a list, the backtracked moves ``(x_left, d, move)`` of row 0 are appended (last first).
+    """
     R, D, W = rows.shape
     inf = torch.tensor(math.inf, dtype=rows.dtype, device=rows.device)
     table = torch.full((W + 1, R, D), math.inf, dtype=rows.dtype, device=rows.device)
@@ -135,6 +138,8 @@ def _scanline_dp_reference(rows: torch.Tensor, occlusion_cost: float
         i, d = W, int(d_end[r])
         while i > 0:
             move = back_np[i, r, d]
+            if moves is not None and r == 0:
+                moves.append((i - 1 if move != _RIGHT_OCCLUDED else i, d, int(move)))
             if move == _MATCH:
                 disp[r, i - 1] = d
                 i -= 1
@@ -144,6 +149,43 @@ def _scanline_dp_reference(rows: torch.Tensor, occlusion_cost: float
             else:
                 d += 1
     return fill_left_occluded(disp, occ), occ, energy.cpu()
+
+
+class ScanlinePath(NamedTuple):
+    """One scanline's disparity space image and optimal three-case DP path (for teaching plots).
+
+    dsi: :math:`(D, W)` the costs ``cost[b, :, y, :]``.
+    path: :math:`(N, 3)` long rows ``(x_left, d, move)`` in left-to-right order, one per DP move: ``move``
+    0 = match of left ``x_left`` with right ``x_left - d``; 1 = left pixel ``x_left`` occluded; 2 = right pixel
+    ``x_left - d`` occluded (``x_left`` = the next left pixel). ``d`` is the DP state's disparity after the move.
+    energy: optimal path cost.
+    """
+
+    dsi: torch.Tensor
+    path: torch.Tensor
+    energy: float
+
+
+def scanline_dp_path(cost: torch.Tensor, occlusion_cost: float, row: int, batch: int = 0) -> ScanlinePath:
+    """The DSI of scanline ``row`` of item ``batch`` and the path :func:`scanline_dp` takes through it.
+
+    Args:
+        cost: :math:`(B, D, H, W)`.
+        occlusion_cost: as for :func:`scanline_dp`.
+        row, batch: which scanline.
+    Returns:
+        :class:`ScanlinePath` (plot ``dsi`` as an image with ``x`` across and ``d`` down, and the path on it).
+    """
+    cost = _check_cost(cost)
+    b, _, h, _ = cost.shape
+    if not (0 <= batch < b and 0 <= row < h):
+        raise StereoInputError(f"row, batch: expected 0 <= row < {h} and 0 <= batch < {b}, got {row}, {batch}")
+    if not occlusion_cost > 0 or not math.isfinite(occlusion_cost):
+        raise StereoInputError(f"occlusion_cost: expected a finite number > 0, got {occlusion_cost!r}")
+    dsi = cost[batch, :, row, :].detach()
+    moves = []
+    energy = _scanline_dp_reference(dsi[None].double(), float(occlusion_cost), moves)[2]
+    return ScanlinePath(dsi, torch.tensor(moves[::-1], dtype=torch.long).view(-1, 3), float(energy[0]))
 
 
 def fill_left_occluded(disp: torch.Tensor, occluded: torch.Tensor) -> torch.Tensor:

@@ -10,7 +10,7 @@ import torch
 from stereonet.checks import StereoInputError
 from stereonet.matchers import match
 from stereonet.optimize._global_mrf import left_occlusions_from_disparity
-from stereonet.optimize.dp import energy_dp, fill_left_occluded, scanline_dp
+from stereonet.optimize.dp import energy_dp, fill_left_occluded, scanline_dp, scanline_dp_path
 
 
 def abs_diff_cost(left: torch.Tensor, right: torch.Tensor, max_disp: int) -> torch.Tensor:
@@ -167,3 +167,19 @@ def test_bad_inputs():
         energy_dp(cost.long(), 1.0)
     with pytest.raises(StereoInputError, match="max_disp"):
         match("dp", torch.rand(1, 1, 8, 8), torch.rand(1, 1, 8, 8), 8)
+
+
+def test_scanline_path_for_teaching():
+    left, right, truth, occluded = step_edge_pair()
+    cost = abs_diff_cost(left, right, 12)
+    res = scanline_dp(cost, 0.25)
+    p = scanline_dp_path(cost, 0.25, row=3)
+    assert p.dsi.shape == (13, 64) and p.path.shape[1] == 3
+    assert abs(p.energy - float(res.energy[0, 3])) < 1e-9
+    matched = p.path[p.path[:, 2] == 0]
+    assert torch.equal(matched[:, 1], res.disparity[0, 0, 3].long()[matched[:, 0]])
+    left_occ = p.path[p.path[:, 2] == 1, 0]
+    assert torch.equal(torch.sort(left_occ).values, torch.nonzero(res.occlusion[0, 0, 3])[:, 0])
+    assert torch.all(p.path[1:, 0] >= p.path[:-1, 0])  # monotone: the ordering constraint
+    with pytest.raises(StereoInputError, match="row"):
+        scanline_dp_path(cost, 0.25, row=16)
