@@ -98,6 +98,24 @@ def markdown_table(rows: Sequence[dict], group: str) -> str:
     return "\n".join(lines)
 
 
+def headline(rows: Sequence[dict], groups: Sequence[str]) -> list[str]:
+    """Markdown lines: per group, the best method of each kind by median bad-2 (after fill), with EPE, SEE,
+    time and the ratios to opencv-sgbm."""
+    from stereonet import matchers
+
+    lines = ["## Headline: best of each kind (median bad-2 after fill, lower is better)", "",
+             "| data | kind | method | bad-2 | EPE | SEE | s/pair | ÷ sgbm bad-2 | × sgbm time |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for group in groups:
+        sel = [r for r in rows if r["group"] == group and r["bad2"] is not None]
+        for kind in dict.fromkeys(matchers.spec(r["method"]).kind for r in sel):
+            best = min((r for r in sel if matchers.spec(r["method"]).kind == kind), key=lambda r: r["bad2"])
+            lines.append(f"| {group} | {kind} | `{best['method']}` | {_fmt(best['bad2'], '.1f')} | "
+                         f"{_fmt(best['epe'], '.2f')} | {_fmt(best['see'], '.2f')} | {_fmt(best['seconds'], '.3f')} | "
+                         f"{_fmt(best['bad2_ratio'], '.2f')} | {_fmt(best['time_ratio'], '.1f')} |")
+    return lines + [""]
+
+
 def plot_speed_accuracy(rows: Sequence[dict], group: str, path: Path) -> None:
     """Scatter: median seconds per pair (log) vs median bad-2, one labelled point per method."""
     import matplotlib
@@ -191,6 +209,7 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
         "`stereonet/cli/common.py`). Rows are sorted by bad-2.",
         "",
     ]
+    parts += headline(rows, list(groups))
     for group in groups:
         parts += [f"## {group}: median over pairs", "", markdown_table(rows, group), ""]
         path = docs / f"speed_accuracy_{group}.png"

@@ -27,6 +27,7 @@ def test_bench_writes_report(tmp_path, monkeypatch):
     assert code == 0
     text = out.read_text()
     assert "## synthetic: median over pairs" in text and "### synthetic:2" in text
+    assert "| synthetic | opencv | `opencv-" in text  # the headline names the best of each kind
     header = next(ln for ln in text.splitlines() if ln.startswith("| method | pairs"))
     col = [c.strip() for c in header.split("|")].index("× sgbm time")
     rows = [[c.strip() for c in ln.split("|")] for ln in text.splitlines() if ln.startswith("| `opencv-")]
