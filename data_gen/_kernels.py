@@ -114,45 +114,72 @@ def _dot(a, i, x, y, z):
 
 
 @numba.njit(cache=True)
-def _intersect(o, edges, blobs, k, ox, oy, oz, dx, dy, dz):  # pragma: no cover - compiled
-    """Ray parameter of the first hit of object row ``o`` (inf on a miss), as the torch primitives."""
-    typ = int(o[TYPE])
+def _dot2(a, k, i, x, y, z):
+    return a[k, i] * x + a[k, i + 1] * y + a[k, i + 2] * z
+
+
+@numba.njit(cache=True)
+def _origin_constants(objs, ox, oy, oz):  # pragma: no cover - compiled
+    """Per object, the ray-independent terms of :func:`_intersect` for rays from (ox, oy, oz):
+    planes/patches: (n.o - k or n.c, e1.(o - c), e2.(o - c)); spheres/cylinders: (o - c), |o - c|^2, axis.(o - c)."""
+    pre = np.zeros((objs.shape[0], 6))
+    for k in range(objs.shape[0]):
+        o = objs[k]
+        typ = int(o[TYPE])
+        mx, my, mz = ox - o[CX], oy - o[CX + 1], oz - o[CX + 2]
+        if typ == PLANE:
+            pre[k, 0] = o[KOFF] - _dot(o, NRM, ox, oy, oz)
+        elif typ == PATCH:
+            pre[k, 0] = -_dot(o, NRM, mx, my, mz)
+            pre[k, 1] = _dot(o, E1, mx, my, mz)
+            pre[k, 2] = _dot(o, E2, mx, my, mz)
+        else:
+            pre[k, 0], pre[k, 1], pre[k, 2] = mx, my, mz
+            pre[k, 3] = mx * mx + my * my + mz * mz
+            pre[k, 4] = _dot(o, NRM, mx, my, mz)
+    return pre
+
+
+@numba.njit(cache=True)
+def _intersect(objs, pre, edges, blobs, k, dx, dy, dz, dd):  # pragma: no cover - compiled
+    """Ray parameter of the first hit of object row ``o`` (inf on a miss), as the torch primitives.
+
+    ``pre``: :func:`_origin_constants` of the objects; ``dd = |d|^2``. (Indexing the full arrays rather than
+    passing row views keeps numba from building array views in the inner loop.)
+    """
+    typ = int(objs[k, TYPE])
     inf = np.inf
     if typ == PLANE or typ == PATCH:
-        denom = _dot(o, NRM, dx, dy, dz)
+        denom = _dot2(objs, k, NRM, dx, dy, dz)
         if denom == 0.0:
             return inf
-        if typ == PLANE:
-            t = (o[KOFF] - _dot(o, NRM, ox, oy, oz)) / denom
-            return t if t > T_EPS else inf
-        cx, cy, cz = o[CX], o[CX + 1], o[CX + 2]
-        t = (_dot(o, NRM, cx, cy, cz) - _dot(o, NRM, ox, oy, oz)) / denom
+        t = pre[k, 0] / denom
         if not t > T_EPS:
             return inf
-        u = (_dot(o, E1, ox, oy, oz) - _dot(o, E1, cx, cy, cz)) + t * _dot(o, E1, dx, dy, dz)
-        v = (_dot(o, E2, ox, oy, oz) - _dot(o, E2, cx, cy, cz)) + t * _dot(o, E2, dx, dy, dz)
-        un = u / o[SU]
-        vn = v / o[SV]
-        shape = int(o[SHAPE])
+        if typ == PLANE:
+            return t
+        un = (pre[k, 1] + t * _dot2(objs, k, E1, dx, dy, dz)) / objs[k, SU]
+        vn = (pre[k, 2] + t * _dot2(objs, k, E2, dx, dy, dz)) / objs[k, SV]
+        shape = int(objs[k, SHAPE])
         r2 = un * un + vn * vn
         if shape == 0:
             return t if r2 <= 1.0 else inf
         if shape == 1:
-            for j in range(int(o[NEDGE])):
+            for j in range(int(objs[k, NEDGE])):
                 if un * edges[k, j, 0] + vn * edges[k, j, 1] > edges[k, j, 2]:
                     return inf
             return t
-        n = int(o[NBLOB])
+        n = int(objs[k, NBLOB])
+        if r2 > 1.0:  # blob radii are <= 1
+            return inf
         pos = (math.atan2(vn, un) * (n / (2 * math.pi))) % n
         i0 = min(int(pos), n - 1)
         frac = pos - i0
         r = blobs[k, i0] * (1 - frac) + blobs[k, (i0 + 1) % n] * frac
         return t if r2 <= r * r else inf
-    mx, my, mz = ox - o[CX], oy - o[CX + 1], oz - o[CX + 2]
-    dd = dx * dx + dy * dy + dz * dz
+    mx, my, mz, mm = pre[k, 0], pre[k, 1], pre[k, 2], pre[k, 3]
     dm = dx * mx + dy * my + dz * mz
-    mm = mx * mx + my * my + mz * mz
-    r = o[RAD]
+    r = objs[k, RAD]
     if typ == SPHERE:
         disc = dm * dm - dd * (mm - r * r)
         if disc < 0:
@@ -163,9 +190,9 @@ def _intersect(o, edges, blobs, k, ox, oy, oz, dx, dy, dz):  # pragma: no cover 
             t = (-dm + sq) / dd
         return t if t > T_EPS else inf
     # cylinder: side wall (both roots) and caps
-    da = _dot(o, NRM, dx, dy, dz)
-    ma = _dot(o, NRM, mx, my, mz)
-    L = o[HALF]
+    da = _dot2(objs, k, NRM, dx, dy, dz)
+    ma = pre[k, 4]
+    L = objs[k, HALF]
     qa = dd - da * da
     qb = dm - da * ma
     qc = mm - ma * ma - r * r
@@ -191,7 +218,7 @@ def _sample_bank(bank, slot, s, t, per_sample):  # pragma: no cover - compiled
     level = 0
     if per_sample > 1.0:
         level = min(int(math.floor(math.log2(per_sample) + 0.5)), MIP_LEVELS - 1)
-    scale = 2.0 ** (-level)
+    scale = math.ldexp(1.0, -level)
     size = BANK_SIZE >> level
     mask = size - 1
     off = MIP_OFFSETS[level]
@@ -262,16 +289,18 @@ def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacin
     """First hit, surface, albedo and shading of every ray ``origin + t dirs[i]`` (pixel ``pix[i]``)."""
     n_obj = objs.shape[0]
     ox, oy, oz = origin[0], origin[1], origin[2]
+    pre = _origin_constants(objs, ox, oy, oz)
     albedo = np.zeros((1, 3))
     for i in range(dirs.shape[0]):
         dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        dd = dx * dx + dy * dy + dz * dz
         px, py = pix[i, 0], pix[i, 1]
         best = np.inf
         bid = -1
         for k in range(n_obj):
             if not (px >= boxes[k, 0] and px <= boxes[k, 1] and py >= boxes[k, 2] and py <= boxes[k, 3]):
                 continue
-            t = _intersect(objs[k], edges, blobs, k, ox, oy, oz, dx, dy, dz)
+            t = _intersect(objs, pre, edges, blobs, k, dx, dy, dz, dd)
             if t < best:
                 best = t
                 bid = k
@@ -321,7 +350,6 @@ def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacin
         if nd > 0:
             nx, ny, nz, nd = -nx, -ny, -nz, -nd
         normals_out[i, 0], normals_out[i, 1], normals_out[i, 2] = nx, ny, nz
-        dd = dx * dx + dy * dy + dz * dz
         footprint = best * dd * spacing / max(abs(nd), 0.05 * math.sqrt(dd))
         m = mats[bid]
         _albedo(m, bank, u, v, footprint, albedo, 0)
@@ -345,14 +373,16 @@ def hidden_points(points, pix, origin, objs, edges, blobs, boxes, rel_eps, out):
     """``out[i]`` = the segment from ``origin`` to ``points[i]`` crosses a surface before the point
     (planes: the point is on the far side; others: a hit with t < 1 - rel_eps), as ``render.visible_from``."""
     ox, oy, oz = origin[0], origin[1], origin[2]
+    pre = _origin_constants(objs, ox, oy, oz)
     for i in range(points.shape[0]):
         px, py = pix[i, 0], pix[i, 1]
         dx, dy, dz = points[i, 0] - ox, points[i, 1] - oy, points[i, 2] - oz
+        dd = dx * dx + dy * dy + dz * dz
         hidden = False
         for k in range(objs.shape[0]):
             o = objs[k]
             if int(o[TYPE]) == PLANE:
-                side_cam = _dot(o, NRM, ox, oy, oz) - o[KOFF]
+                side_cam = -pre[k, 0]  # n.o - k
                 side_pt = _dot(o, NRM, points[i, 0], points[i, 1], points[i, 2]) - o[KOFF]
                 sg = 1.0 if side_cam >= 0 else -1.0
                 if side_pt * sg < -rel_eps * abs(side_cam):
@@ -361,7 +391,7 @@ def hidden_points(points, pix, origin, objs, edges, blobs, boxes, rel_eps, out):
                 continue
             if not (px >= boxes[k, 0] and px <= boxes[k, 1] and py >= boxes[k, 2] and py <= boxes[k, 3]):
                 continue
-            if _intersect(o, edges, blobs, k, ox, oy, oz, dx, dy, dz) < 1 - rel_eps:
+            if _intersect(objs, pre, edges, blobs, k, dx, dy, dz, dd) < 1 - rel_eps:
                 hidden = True
                 break
         out[i] = hidden
