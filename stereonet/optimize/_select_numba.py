@@ -10,17 +10,20 @@ from numba import prange
 
 
 @numba.njit(parallel=True, cache=True)
-def select_hwd(vol, method, ratio):
-    """Args: vol (H, W, D) float32; method 0 = none, 1 = parabola, 2 = equiangular; ratio in [0, 1).
+def select_hwd(vol, method, ratio, lr_tol):
+    """Args: vol (H, W, D) float32; method 0 = none, 1 = parabola, 2 = equiangular; ratio in [0, 1);
+    lr_tol: LR-check tolerance (< 0 = no check).
 
     Returns: disp (H, W) float32 (refined), min_cost (H, W) float32, unique (H, W) bool,
-    disp_right (H, W) float32 (integer-valued right-reference WTA, ties to the smallest disparity).
+    disp_right (H, W) float32 (integer-valued right-reference WTA, ties to the smallest disparity),
+    lr_ok (H, W) bool (:func:`stereonet.optimize.lr_check.left_right_check` of disp and disp_right).
     """
     H, W, D = vol.shape
     disp = np.empty((H, W), np.float32)
     min_cost = np.empty((H, W), np.float32)
     unique = np.ones((H, W), np.bool_)
     disp_right = np.zeros((H, W), np.float32)
+    lr_ok = np.ones((H, W), np.bool_)
     keep = np.float32(1.0 - ratio)
     for y in prange(H):
         right_best = np.empty(W, np.float32)
@@ -58,4 +61,11 @@ def select_hwd(vol, method, ratio):
                     off = (cm - cp) / den
                     off = min(max(off, np.float32(-0.5)), np.float32(0.5))
             disp[y, x] = np.float32(bi) + off
-    return disp, min_cost, unique, disp_right
+        if lr_tol >= 0:
+            for x in range(W):
+                xr = np.rint(np.float32(x) - disp[y, x])  # round half to even, as torch.round
+                if xr < 0 or xr > W - 1:
+                    lr_ok[y, x] = False
+                else:
+                    lr_ok[y, x] = abs(disp[y, x] - disp_right[y, int(xr)]) <= lr_tol
+    return disp, min_cost, unique, disp_right, lr_ok

@@ -18,7 +18,6 @@ from stereonet.cost import build_cost_volume
 from stereonet.matchers import register
 from stereonet.optimize.fill import fill_occlusions
 from stereonet.optimize.filters import median_filter, speckle_filter
-from stereonet.optimize.lr_check import left_right_check
 from stereonet.optimize.sgm import sgm_aggregate
 from stereonet.optimize.wta import select_disparity
 from stereonet.types import StereoOutput
@@ -54,8 +53,7 @@ def select_and_filter(cost: torch.Tensor, *, subpixel: str | None = "parabola", 
         :class:`StereoOutput` with ``cost_volume=cost`` and extras ``disparity_right`` (right-reference
         WTA), ``lr_valid`` and ``unique`` (bool masks).
     """
-    disp, _, unique, disp_right = select_disparity(cost, subpixel, uniqueness)
-    lr_ok = left_right_check(disp, disp_right, lr_tol) if lr_tol is not None else torch.ones_like(unique)
+    disp, _, unique, disp_right, lr_ok = select_disparity(cost, subpixel, uniqueness, lr_tol)
     valid = unique & lr_ok
     if median:
         disp = median_filter(disp, median, valid)

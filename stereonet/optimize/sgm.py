@@ -65,6 +65,21 @@ def p2_maps(P1: float, P2: float, directions, image: torch.Tensor | None, shape:
     return out
 
 
+def p2_maps_numpy(P1: float, P2: float, directions, grey: np.ndarray, p2_alpha: float) -> np.ndarray:
+    """:func:`p2_maps` for one grey image (H, W) float32 in numpy (the numba backend's input, no torch
+    threading): the same float32 operations, (R, H, W) float32."""
+    h, w = grey.shape
+    out = np.full((len(directions), h, w), np.float32(P2), dtype=np.float32)
+    if p2_alpha == 0:
+        return out
+    for i, (dx, dy) in enumerate(directions):
+        ys, yp = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h - max(dy, 0))
+        xs, xp = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w - max(dx, 0))
+        grad = np.abs(grey[ys, xs] - grey[yp, xp])
+        out[i, ys, xs] = np.maximum(np.float32(P2) / (np.float32(1.0) + np.float32(p2_alpha) * grad), np.float32(P1))
+    return out
+
+
 def _path_step(c: torch.Tensor, prev: torch.Tensor, has_prev: torch.Tensor, P1: float,
                p2: torch.Tensor) -> torch.Tensor:
     """One recurrence step. c, prev: (B, D, N); has_prev: (N,) bool; p2: (B, 1, N) -> (B, D, N)."""
@@ -162,12 +177,14 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
     from stereonet.optimize._sgm_numba import sgm_numba_hwd
 
     b, n, h, w = cost.shape
-    p2 = p2_maps(P1, P2, directions, image, (b, h, w), p2_alpha, torch.float32, torch.device("cpu"))
+    grey = None if image is None else to_grey(image.detach()).to("cpu", torch.float32)[:, 0].numpy()  # BxHxW
     dirs = np.asarray(directions, dtype=np.int64)
     outs = []
     for i in range(b):
+        p2 = p2_maps_numpy(P1, P2, directions, grey[i] if grey is not None else np.zeros((h, w), np.float32),
+                           p2_alpha if grey is not None else 0.0)
         c_hwd = cost[i].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD
-        s = sgm_numba_hwd(c_hwd, np.float32(P1), p2[i].numpy(), dirs)
+        s = sgm_numba_hwd(c_hwd, np.float32(P1), p2, dirs)
         del c_hwd
         outs.append(torch.from_numpy(s))
     total = torch.stack(outs) if b > 1 else outs[0][None]  # BxHxWxD

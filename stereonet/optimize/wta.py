@@ -45,23 +45,27 @@ def uniqueness_mask(cost: torch.Tensor, disp: torch.Tensor, ratio: float = 0.1) 
 
 
 def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniqueness: float = 0.0,
-                     backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """WTA + sub-pixel + uniqueness + right-reference WTA in one call.
+                     lr_tol: float | None = None, backend: str = "auto"
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """WTA + sub-pixel + uniqueness + right-reference WTA + LR check in one call.
 
     ``backend="auto"`` runs one numba pass (:mod:`stereonet.optimize._select_numba`) for a float32 CPU
     volume without gradient, else the torch functions :func:`wta`, :func:`~stereonet.optimize.subpixel.
-    subpixel_refine`, :func:`uniqueness_mask` and :func:`~stereonet.optimize.lr_check.wta_right`.
+    subpixel_refine`, :func:`uniqueness_mask`, :func:`~stereonet.optimize.lr_check.wta_right` and
+    :func:`~stereonet.optimize.lr_check.left_right_check`.
 
     Args:
         cost: :math:`(B, D, H, W)` left-reference costs.
         subpixel: ``"parabola"``, ``"equiangular"`` or None.
         uniqueness: ratio for :func:`uniqueness_mask` (0 keeps every non-tied pixel).
+        lr_tol: LR-check tolerance in pixels, None = no check (``lr_ok`` all True).
         backend: ``"auto"``, ``"torch"`` or ``"numba"``.
 
     Returns:
-        ``(disp, min_cost, unique, disp_right)``, each :math:`(B, 1, H, W)` (``unique`` bool).
+        ``(disp, min_cost, unique, disp_right, lr_ok)``, each :math:`(B, 1, H, W)` (``unique``, ``lr_ok``
+        bool; ``disp_right`` integer-valued, right-referenced).
     """
-    from stereonet.optimize.lr_check import wta_right
+    from stereonet.optimize.lr_check import left_right_check, wta_right
     from stereonet.optimize.subpixel import subpixel_refine
 
     check_cost_volume(cost)
@@ -72,6 +76,8 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
         raise StereoInputError(f"uniqueness: expected 0 <= uniqueness < 1, got {uniqueness}")
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
+    if lr_tol is not None and lr_tol < 0:
+        raise StereoInputError(f"lr_tol: expected a non-negative tolerance or None, got {lr_tol}")
     use_numba = backend == "numba" or (backend == "auto" and cost.device.type == "cpu"
                                        and cost.dtype == torch.float32
                                        and not (torch.is_grad_enabled() and cost.requires_grad))
@@ -80,13 +86,16 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
         unique = uniqueness_mask(cost, disp, uniqueness)
         if subpixel is not None:
             disp = subpixel_refine(cost, disp, subpixel)
-        return disp, min_cost, unique, wta_right(cost)
+        disp_right = wta_right(cost)
+        lr_ok = left_right_check(disp, disp_right, lr_tol) if lr_tol is not None else torch.ones_like(unique)
+        return disp, min_cost, unique, disp_right, lr_ok
     from stereonet.optimize._select_numba import select_hwd
 
     outs = []
     for b in range(cost.shape[0]):
         vol = cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
-        outs.append([torch.from_numpy(a) for a in select_hwd(vol, methods[subpixel], float(uniqueness))])
-    disp, min_cost, unique, disp_right = (torch.stack([o[i] for o in outs])[:, None].to(cost.device)
-                                          for i in range(4))
-    return disp.to(cost.dtype), min_cost.to(cost.dtype), unique, disp_right.to(cost.dtype)
+        tol = -1.0 if lr_tol is None else float(lr_tol)
+        outs.append([torch.from_numpy(a) for a in select_hwd(vol, methods[subpixel], float(uniqueness), tol)])
+    disp, min_cost, unique, disp_right, lr_ok = (torch.stack([o[i] for o in outs])[:, None].to(cost.device)
+                                                 for i in range(5))
+    return disp.to(cost.dtype), min_cost.to(cost.dtype), unique, disp_right.to(cost.dtype), lr_ok
