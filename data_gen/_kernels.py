@@ -284,9 +284,23 @@ def _albedo(m, bank, u, v, footprint, out, i):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _blinn_phong(ks, shininess, nx, ny, nz, vx, vy, vz, light):  # pragma: no cover - compiled
+    """``ks max(0, n . h)^shininess`` with h the unit half vector of the view direction v and the light."""
+    vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+    hx, hy, hz = vx / vn + light[0], vy / vn + light[1], vz / vn + light[2]
+    hn = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
+    return ks * max((nx * hx + ny * hy + nz * hz) / hn, 0.0) ** shininess
+
+
+@numba.njit(cache=True)
 def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacing, light, ambient, specular,
-                t_out, ids_out, points_out, normals_out, rgb_out, spec_out):  # pragma: no cover - compiled
-    """First hit, surface, albedo and shading of every ray ``origin + t dirs[i]`` (pixel ``pix[i]``)."""
+                eye2, t_out, ids_out, points_out, normals_out, rgb_out, spec_out, spec2_out
+                ):  # pragma: no cover - compiled
+    """First hit, surface, albedo and shading of every ray ``origin + t dirs[i]`` (pixel ``pix[i]``).
+
+    ``spec2_out`` receives the specular radiance of the same points towards a second viewpoint ``eye2``
+    (e.g. the other camera of the rig; ignored when ``eye2`` has no element).
+    """
     n_obj = objs.shape[0]
     ox, oy, oz = origin[0], origin[1], origin[2]
     pre = _origin_constants(objs, ox, oy, oz)
@@ -313,6 +327,8 @@ def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacin
                 rgb_out[i, c] = 0.0
             spec_out[i] = 0.0
             continue
+        if eye2.shape[0] == 3:
+            spec2_out[i] = 0.0
         o = objs[bid]
         p0, p1, p2 = ox + best * dx, oy + best * dy, oz + best * dz
         points_out[i, 0], points_out[i, 1], points_out[i, 2] = p0, p1, p2
@@ -357,12 +373,10 @@ def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacin
         irradiance = max(nl * (1 - ambient), 0.0) + ambient
         spec = 0.0
         if specular and m[KS] > 0 and nl > 0:
-            vx, vy, vz = ox - p0, oy - p1, oz - p2
-            vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-            hx, hy, hz = vx / vn + light[0], vy / vn + light[1], vz / vn + light[2]
-            hn = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
-            ndh = max((nx * hx + ny * hy + nz * hz) / hn, 0.0)
-            spec = m[KS] * ndh ** m[SHINY]
+            spec = _blinn_phong(m[KS], m[SHINY], nx, ny, nz, ox - p0, oy - p1, oz - p2, light)
+            if eye2.shape[0] == 3:
+                spec2_out[i] = _blinn_phong(m[KS], m[SHINY], nx, ny, nz, eye2[0] - p0, eye2[1] - p1, eye2[2] - p2,
+                                            light)
         spec_out[i] = spec
         for c in range(3):
             rgb_out[i, c] = albedo[0, c] * irradiance + spec

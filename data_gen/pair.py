@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import torch
 
-from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, specular_radiance, visible_from
+from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, visible_from
 from data_gen.scene import (
     DIFFICULTY,
     Rig,
@@ -145,7 +145,7 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_rig
     if rig.rectified:
         valid_r &= disp_r > 0
     # specular mask: shiny in the left view, or at the same surface point seen from the right camera
-    spec_r_at_l = specular_radiance(scene, ids_l, left["points"], left["normals"], cam_r.center)
+    spec_r_at_l = left["specular_second"].reshape(-1)
     specular = (left["specular"].reshape(-1) > SPECULAR_MASK_THRESHOLD) | (spec_r_at_l > SPECULAR_MASK_THRESHOLD)
 
     def img(x, dtype=torch.float32):
@@ -210,7 +210,8 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)
     level = DIFFICULTY[difficulty]
     response = [_photometric(rng, level), _photometric(rng, level)]
-    views = [render_view(scene, cam, supersample, specular=specular) for cam in (rig.left, rig.right)]
+    views = [render_view(scene, rig.left, supersample, specular=specular, second_eye=rig.right.center),
+             render_view(scene, rig.right, supersample, specular=specular)]
     gt = _ground_truth(scene, rig, views[0], views[1], occlusion_right)
     if not specular:
         gt["specular"].zero_()

@@ -384,22 +384,24 @@ def _pixel_rays(camera: Camera, x: torch.Tensor, y: torch.Tensor) -> torch.Tenso
 
 
 def _kernel_trace(scene: Scene, camera: Camera, packed: dict, dirs: np.ndarray, pix: np.ndarray, spacing: float,
-                  specular: bool) -> dict[str, np.ndarray]:
+                  specular: bool, second_eye: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Run :func:`data_gen._kernels.trace_shade` on rays ``dirs (N, 3)`` through pixels ``pix (N, 2)``."""
     from data_gen._kernels import trace_shade
 
     n = dirs.shape[0]
     out = dict(t=np.empty(n), ids=np.empty(n, dtype=np.int64), points=np.empty((n, 3)), normals=np.empty((n, 3)),
-               rgb=np.empty((n, 3)), spec=np.empty(n))
+               rgb=np.empty((n, 3)), spec=np.empty(n), spec2=np.zeros(n))
+    eye2 = np.zeros(0) if second_eye is None else np.asarray(second_eye, dtype=np.float64).reshape(3)
     trace_shade(np.ascontiguousarray(dirs, dtype=np.float64), np.ascontiguousarray(pix, dtype=np.float64),
                 np.asarray(camera.center, dtype=np.float64), packed["objs"], packed["edges"], packed["blobs"],
                 packed["mats"], packed["boxes"], packed["bank"], float(spacing),
-                np.asarray(scene.light_dir, dtype=np.float64), float(scene.ambient), bool(specular),
-                out["t"], out["ids"], out["points"], out["normals"], out["rgb"], out["spec"])
+                np.asarray(scene.light_dir, dtype=np.float64), float(scene.ambient), bool(specular), eye2,
+                out["t"], out["ids"], out["points"], out["normals"], out["rgb"], out["spec"], out["spec2"])
     return out
 
 
-def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, dtype: torch.dtype) -> dict:
+def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, dtype: torch.dtype,
+                         second_eye: np.ndarray | None = None) -> dict:
     """:func:`render_view` with the compiled kernels (same algorithm, float64 inside)."""
     from data_gen._kernels import pack_scene
 
@@ -409,7 +411,8 @@ def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, d
     ys, xs = np.meshgrid(grid.ys_np, grid.xs_np, indexing="ij")
     pix = np.stack([xs.ravel(), ys.ravel()], axis=-1)  # HWx2
     f = float(camera.K[0, 0])
-    out = _kernel_trace(scene, camera, packed, grid.dirs().reshape(-1, 3).numpy(), pix, 1.0 / f, specular)
+    out = _kernel_trace(scene, camera, packed, grid.dirs().reshape(-1, 3).numpy(), pix, 1.0 / f, specular,
+                        second_eye)
     ids = torch.from_numpy(out["ids"]).reshape(h, w)
     normals = torch.from_numpy(out["normals"]).to(dtype)
     rgb = out["rgb"]
@@ -426,12 +429,13 @@ def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, d
     img = torch.from_numpy(rgb).to(dtype).reshape(h, w, 3).permute(2, 0, 1)  # 3xHxW
     return {"image": img.clamp(0.0, 1.0).contiguous(), "depth": torch.from_numpy(out["t"]).to(dtype).reshape(h, w),
             "ids": ids, "points": torch.from_numpy(out["points"]).to(dtype), "normals": normals,
-            "specular": torch.from_numpy(out["spec"]).to(dtype).reshape(h, w), "edges": edges}
+            "specular": torch.from_numpy(out["spec"]).to(dtype).reshape(h, w), "edges": edges,
+            **({} if second_eye is None else {"specular_second": torch.from_numpy(out["spec2"]).to(dtype).reshape(h, w)})}
 
 
 def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bool = True,
                 extra_light_fn: Callable | None = None, dtype: torch.dtype = torch.float32,
-                compiled: bool | None = None) -> dict[str, torch.Tensor]:
+                compiled: bool | None = None, second_eye: np.ndarray | None = None) -> dict[str, torch.Tensor]:
     """Render one camera.
 
     One ray through each pixel centre gives the geometry (exact at pixel centres) and the shading of
@@ -445,7 +449,9 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     Returns a dict with ``image`` :math:`(3, H, W)` radiance clipped to [0, 1], ``depth`` :math:`(H, W)`
     (z in this camera's frame, inf = miss), ``ids`` :math:`(H, W)` long, ``points`` and ``normals``
     :math:`(H W, 3)` (world frame, centre rays), ``specular`` :math:`(H, W)` specular radiance at the centre
-    rays, ``edges`` :math:`(H, W)` bool (the supersampled pixels: object boundaries and normal creases).
+    rays, ``edges`` :math:`(H, W)` bool (the supersampled pixels: object boundaries and normal creases), and
+    with ``second_eye`` :math:`(3,)` ``specular_second`` :math:`(H, W)`: the specular radiance of the same
+    surface points towards that viewpoint (the other camera), for the view-dependence mask.
     """
     s = int(supersample)
     if s < 1:
@@ -453,7 +459,7 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     if compiled is None:
         compiled = USE_KERNELS
     if compiled and extra_light_fn is None:
-        return _render_view_kernels(scene, camera, s, specular, dtype)
+        return _render_view_kernels(scene, camera, s, specular, dtype, second_eye)
     w, h = camera.size
     grid = camera.grid_rays(1, dtype)
     t, ids, _ = raycast_grid(scene, grid)
@@ -473,5 +479,9 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
         sub = render_rays(scene, camera, sx, sy, 1.0 / (s * float(camera.K[0, 0])), specular, extra_light_fn)
         rgb[ey * w + ex] = sub.reshape(-1, s * s, 3).mean(1)
     img = rgb.reshape(h, w, 3).permute(2, 0, 1)  # 3xHxW
-    return {"image": img.clamp(0.0, 1.0).contiguous(), "depth": t, "ids": ids, "points": points,
-            "normals": normals, "specular": spec.reshape(h, w), "edges": edges}
+    out = {"image": img.clamp(0.0, 1.0).contiguous(), "depth": t, "ids": ids, "points": points,
+           "normals": normals, "specular": spec.reshape(h, w), "edges": edges}
+    if second_eye is not None:
+        out["specular_second"] = (specular_radiance(scene, ids.reshape(-1), points, normals, second_eye).reshape(h, w)
+                                  if specular else torch.zeros(h, w, dtype=dtype))
+    return out
