@@ -82,3 +82,15 @@ def test_atomic_write_leaves_nothing_on_error(tmp_path):
         raise RuntimeError("interrupted")
     assert target.read_text() == "one"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+def test_atomic_write_respects_umask(tmp_path):
+    import os
+
+    target = tmp_path / "b.txt"
+    old = os.umask(0o022)
+    try:
+        atomic_write_text(target, "x")
+    finally:
+        os.umask(old)
+    assert (target.stat().st_mode & 0o777) == 0o644
