@@ -168,6 +168,15 @@ def _hw(img: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(img.detach().to("cpu", torch.float32)[0].numpy())
 
 
+def _box_np(img: np.ndarray, window: int) -> np.ndarray:
+    """box_mean of an (H, W[, C]) float32 array with the numba kernel (a copy)."""
+    from stereonet.cost._cost_numba import box_mean_hwd
+
+    out = np.array(img if img.ndim == 3 else img[:, :, None], dtype=np.float32, order="C")
+    box_mean_hwd(out, window)
+    return out if img.ndim == 3 else out[:, :, 0]
+
+
 def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int, *,
                       census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
                       mode: str = "multiwindow", base: str = "sad") -> torch.Tensor:
@@ -189,14 +198,15 @@ def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, co
             sq = cost == "ssd" or (cost == "adaptive" and base == "ssd")
             vol = K.pixel_diff(_hwc(lb[0]), _hwc(rb[0]), n_disp, sq)
         elif cost == "zsad":
-            vol = K.pixel_diff(_hwc((lb - box_mean(lb, window))[0]), _hwc((rb - box_mean(rb, window))[0]),
-                               n_disp, False)
+            li, ri = _hwc(lb[0]), _hwc(rb[0])
+            vol = K.pixel_diff(li - _box_np(li, window), ri - _box_np(ri, window), n_disp, False)
         elif cost == "lssad":
-            vol = K.pixel_diff(_hwc((lb / (box_mean(lb, window) + LSSAD_EPS))[0]),
-                               _hwc((rb / (box_mean(rb, window) + LSSAD_EPS))[0]), n_disp, False)
+            li, ri = _hwc(lb[0]), _hwc(rb[0])
+            vol = K.pixel_diff(li / (_box_np(li, window) + np.float32(LSSAD_EPS)),
+                               ri / (_box_np(ri, window) + np.float32(LSSAD_EPS)), n_disp, False)
         elif cost == "ncc":
-            gl, gr = to_grey(lb).float(), to_grey(rb).float()
-            vol = K.pixel_product(_hw(gl[0]), _hw(gr[0]), n_disp)
+            gl, gr = _hw(to_grey(lb)[0]), _hw(to_grey(rb)[0])
+            vol = K.pixel_product(gl, gr, n_disp)
         elif cost in ("census", "census_ad"):
             check_window(census_window, "census_window")
             if census_window < 3:
@@ -213,10 +223,10 @@ def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, co
         if window > 1 and cost != "ad":
             K.box_mean_hwd(vol, window)
         if cost == "ncc":
-            mu_l, mu_r = box_mean(gl, window), box_mean(gr, window)
-            var_l = (box_mean(gl * gl, window) - mu_l * mu_l).clamp(min=0)
-            var_r = (box_mean(gr * gr, window) - mu_r * mu_r).clamp(min=0)
-            K.ncc_finalize(vol, _hw(mu_l[0]), _hw(var_l[0]), _hw(mu_r[0]), _hw(var_r[0]), NCC_MIN_VARIANCE)
+            mu_l, mu_r = _box_np(gl, window), _box_np(gr, window)
+            var_l = np.maximum(_box_np(gl * gl, window) - mu_l * mu_l, np.float32(0))
+            var_r = np.maximum(_box_np(gr * gr, window) - mu_r * mu_r, np.float32(0))
+            K.ncc_finalize(vol, mu_l, var_l, mu_r, var_r, NCC_MIN_VARIANCE)
         if cost == "adaptive":
             vol = K.multiwindow_hwd(vol, window) if mode == "multiwindow" else K.min_filter_hwd(vol, window)
         vols.append(vol)

@@ -133,3 +133,20 @@ def test_median_numba_equals_torch(with_valid):
     for size in (3, 5):
         torch.testing.assert_close(median_filter(disp, size, valid, backend="numba"),
                                    median_filter(disp, size, valid, backend="torch"))
+
+
+def test_dsi_scanline_and_plot(tmp_path):
+    from stereonet.optimize.dsi import dsi_scanline, plot_dsi
+
+    left, right, gt = step_pair()
+    vol = build_cost_volume(left, right, 12, cost="sad", window=5)
+    dsi, path = dsi_scanline(vol, 16)
+    assert dsi.shape == (13, 112) and path.shape == (112,)
+    assert (path[46:64] == D_FG).all() and (path[80:100] == D_BG).all()
+    _, given = dsi_scanline(vol, 16, path=gt)
+    assert torch.equal(given, gt[0, 0, 16])
+    out = tmp_path / "dsi.png"
+    plot_dsi(dsi, {"WTA": path, "ground truth": given}, out=out)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(StereoInputError, match="row"):
+        dsi_scanline(vol, 32)

@@ -51,8 +51,8 @@ def test_p2_adapts_to_gradient():
 
 def test_gradcheck_torch_reference():
     g = torch.Generator().manual_seed(1)
-    cost = torch.rand(1, 4, 3, 4, generator=g, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda c: sgm_aggregate(c, 0.05, 0.3, 8), (cost,))
+    cost = torch.rand(1, 3, 2, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda c: sgm_aggregate(c, 0.05, 0.3, 8), (cost,), fast_mode=True)
 
 
 def test_bad_input():
