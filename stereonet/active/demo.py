@@ -198,9 +198,29 @@ def orbit_cameras(count: int = 4, spread_deg: float = 40.0, radius: float = 2.2,
     return cams
 
 
+def feature_chain_guess(data: list) -> tuple[list, list]:
+    """Initial poses into scan 0's frame from SIFT matches between consecutive scans, chained:
+    ``T_0i = T_0(i-1) T_(i-1)i`` (each link from :func:`~stereonet.active.icp.feature_guess`)."""
+    from stereonet.active.icp import feature_guess
+
+    Rs, ts = [torch.eye(3, dtype=torch.float64)], [torch.zeros(3, dtype=torch.float64)]
+    for i in range(1, len(data)):
+        R, t, _ = feature_guess(data[i - 1], data[i], seed=i)
+        Rs.append(Rs[-1] @ R)
+        ts.append(Rs[-2] @ t + ts[-1])
+    return Rs, ts
+
+
 def run_align(out: Path, seed: int = 0, scans: int = 4, noise_std: float = 0.002, init_rot_deg: float = 4.0,
-              init_trans: float = 0.05, width: int = 200, height: int = 150, pictures: bool = True) -> dict:
-    """Render ``scans`` noisy range scans, perturb the true poses into a guess, align by ICP, merge to PLY."""
+              init_trans: float = 0.05, width: int = 200, height: int = 150, pictures: bool = True,
+              init: str = "perturbed") -> dict:
+    """Render ``scans`` noisy range scans, guess their poses, align by ICP, merge to PLY.
+
+    ``init="perturbed"``: each true pose rotated by ``init_rot_deg`` about a random axis and shifted by
+    ``init_trans``; ``init="features"``: chained SIFT-match + RANSAC guesses (:func:`feature_chain_guess`).
+    """
+    if init not in ("perturbed", "features"):
+        raise ValueError(f"init: expected 'perturbed' or 'features', got {init!r}")
     out.mkdir(parents=True, exist_ok=True)
     scene = make_scene("textured", seed)
     cams = orbit_cameras(scans, width=width, height=height, focal=200.0 * width / 200)
@@ -214,8 +234,12 @@ def run_align(out: Path, seed: int = 0, scans: int = 4, noise_std: float = 0.002
         init_R.append(rotation_matrix(axis / axis.norm() * math.radians(init_rot_deg)) @ R)
         d = torch.randn(3, generator=g, dtype=torch.float64)
         init_t.append(t + init_trans * d / d.norm())
-    metrics: dict = {"seed": seed, "scans": scans, "noise_std": noise_std, "init_rot_deg": init_rot_deg,
-                     "init_trans": init_trans, "points": [int(s.points.shape[0]) for s in data]}
+    if init == "features":
+        init_R, init_t = feature_chain_guess(data)
+    metrics: dict = {"seed": seed, "scans": scans, "noise_std": noise_std, "init": init,
+                     "init_rot_deg": init_rot_deg if init == "perturbed" else None,
+                     "init_trans": init_trans if init == "perturbed" else None,
+                     "points": [int(s.points.shape[0]) for s in data]}
     for method in ("point_to_point", "point_to_plane"):
         t0 = time.perf_counter()
         al = align_scans([s.points for s in data], init_R, init_t, method=method, voxel=0.02,
@@ -233,7 +257,7 @@ def run_align(out: Path, seed: int = 0, scans: int = 4, noise_std: float = 0.002
         if pictures:
             pts, col = merge_scans([s.points for s in data], [s.colors for s in data], al.R, al.t, voxel=0.005)
             write_ply(out / f"merged_{method}.ply", pts, col)
-    metrics["init"] = [{"scan": i, "rot_err_deg": rotation_error_deg(init_R[i], gt[i][0]),
+    metrics["init_errors"] = [{"scan": i, "rot_err_deg": rotation_error_deg(init_R[i], gt[i][0]),
                         "trans_err": float((init_t[i] - gt[i][1]).norm())} for i in range(1, scans)]
     if pictures:
         pts, col = merge_scans([s.points for s in data], [s.colors for s in data], init_R, init_t, voxel=0.005)
@@ -264,6 +288,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--method", default="opencv-sgbm", help="structured-light: registered matcher name")
     p.add_argument("--angles", type=int, default=160, help="laser: number of sheet positions")
     p.add_argument("--scans", type=int, default=4, help="align: number of range scans")
+    p.add_argument("--init", choices=["perturbed", "features"], default="perturbed",
+                   help="align: initial guess from perturbed true poses or from SIFT matches + RANSAC")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     torch.set_num_threads(1)  # small tensors: thread hand-offs cost more than they save on a busy CPU
@@ -280,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
                    f"p95 {1000 * m['p95_abs_err']:.2f} mm")
     else:
         w = a.width or 200
-        m = run_align(a.out, a.seed, a.scans, width=w, height=w * 3 // 4)
+        m = run_align(a.out, a.seed, a.scans, width=w, height=w * 3 // 4, init=a.init)
         summary = (f"ICP point-to-plane: max rotation error {m['point_to_plane']['max_rot_err_deg']:.3f} deg, "
                    f"max translation error {1000 * m['point_to_plane']['max_trans_err']:.2f} mm")
     sys.stdout.write(summary + f"\nwrote {a.out}\n")

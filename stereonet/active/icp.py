@@ -244,15 +244,92 @@ def merge_scans(points: Sequence[torch.Tensor], colors: Sequence[torch.Tensor] |
     return pts, col
 
 
+def ransac_rigid(src: torch.Tensor, dst: torch.Tensor, threshold: float = 0.03, iterations: int = 1000,
+                 min_inliers: int = 6, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Robust ``R, t`` with ``dst ~ R src + t`` from putative 3-D matches :math:`(N, 3)` (e.g. back-projected
+    feature matches), some wrong: RANSAC over minimal 3-point Kabsch fits (all hypotheses solved at once by a
+    batched SVD), then a least-squares refit on the inliers (distance < ``threshold``).
+
+    Returns ``R`` :math:`(3, 3)`, ``t`` :math:`(3,)`, inlier mask :math:`(N,)`.
+    Raises :class:`StereoInputError` when fewer than ``min_inliers`` matches agree on one motion.
+    """
+    src, dst = _check_points(src, "src"), _check_points(dst, "dst")
+    if src.shape != dst.shape:
+        raise StereoInputError(f"dst: expected shape {tuple(src.shape)} like src, got {tuple(dst.shape)}")
+    n = src.shape[0]
+    if n < max(3, min_inliers):
+        raise StereoInputError(f"src: expected at least {max(3, min_inliers)} matches, got {n}")
+    g = torch.Generator().manual_seed(int(seed))
+    idx = torch.randint(0, n, (iterations, 3), generator=g)
+    S, D = src[idx], dst[idx]  # Ix3x3
+    mu_s, mu_d = S.mean(1, keepdim=True), D.mean(1, keepdim=True)
+    H = (S - mu_s).transpose(1, 2) @ (D - mu_d)  # Ix3x3
+    U, _, Vt = torch.linalg.svd(H)
+    V, Ut = Vt.transpose(1, 2), U.transpose(1, 2)
+    fix = torch.ones(iterations, 3, dtype=_F64)
+    fix[:, 2] = torch.sign(torch.linalg.det(V @ Ut))
+    R = V @ torch.diag_embed(fix) @ Ut  # Ix3x3
+    t = mu_d[:, 0] - (R @ mu_s[:, 0, :, None])[..., 0]  # Ix3
+    resid = (src[None] @ R.transpose(1, 2) + t[:, None] - dst[None]).norm(dim=-1)  # IxN
+    count = (resid < threshold).sum(1)
+    best = int(count.argmax())
+    inliers = resid[best] < threshold
+    if int(inliers.sum()) < min_inliers:
+        raise StereoInputError(f"src/dst: no rigid motion explains more than {int(inliers.sum())} of {n} matches "
+                               f"within {threshold} (need {min_inliers}); the scans may not overlap")
+    R_fit, t_fit = best_rigid_transform(src[inliers], dst[inliers])
+    inliers = (src @ R_fit.T + t_fit - dst).norm(dim=-1) < threshold
+    return R_fit, t_fit, inliers
+
+
 @dataclass
 class RangeScan:
     """One range scan: camera-frame ``points`` :math:`(N, 3)`, ``colors`` :math:`(N, 3)` uint8, and the scanner's
-    true world-to-camera pose ``R`` :math:`(3, 3)`, ``t`` :math:`(3,)` (for evaluation and for making guesses)."""
+    true world-to-camera pose ``R`` :math:`(3, 3)`, ``t`` :math:`(3,)` (for evaluation and for making guesses).
+    Optionally the scanner's colour ``image`` :math:`(1, 3, H, W)`, its noisy ``depth`` map :math:`(H, W)`
+    (0 = no return) and intrinsics ``K``, for feature-based initial guesses (:func:`feature_guess`)."""
 
     points: torch.Tensor
     colors: torch.Tensor
     R: torch.Tensor
     t: torch.Tensor
+    image: torch.Tensor | None = None
+    depth: torch.Tensor | None = None
+    K: torch.Tensor | None = None
+
+
+def feature_guess(scan_to: RangeScan, scan_from: RangeScan, threshold: float = 0.03,
+                  seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """Coarse pose of ``scan_from`` in ``scan_to``'s frame from SIFT matches between their images, lifted to
+    3-D through their depth maps and fitted by :func:`ransac_rigid`. Returns ``R``, ``t``, inlier count.
+
+    Raises :class:`StereoInputError` when the images share too few consistent features (no overlap).
+    """
+    from stereonet.features.matching import match_sift
+    from stereonet.geometry.camera import DegenerateGeometryError
+
+    for name, sc in (("scan_to", scan_to), ("scan_from", scan_from)):
+        if sc.image is None or sc.depth is None or sc.K is None:
+            raise StereoInputError(f"{name}: expected a scan with image, depth and K for feature matching")
+    try:
+        xy_to, xy_from = match_sift(scan_to.image, scan_from.image, min_matches=6)
+    except DegenerateGeometryError as e:
+        raise StereoInputError(f"scan_to/scan_from: too few feature matches to guess a pose ({e})") from e
+
+    def lift(sc: RangeScan, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        h, w = sc.depth.shape
+        px = xy.round().long()
+        px[:, 0].clamp_(0, w - 1)
+        px[:, 1].clamp_(0, h - 1)
+        z = sc.depth[px[:, 1], px[:, 0]].to(_F64)
+        uv1 = torch.cat([xy, torch.ones_like(xy[:, :1])], 1).to(_F64)
+        return (uv1 @ torch.linalg.inv(sc.K.to(_F64)).T) * z[:, None], z > 0
+
+    p_to, ok_to = lift(scan_to, xy_to)
+    p_from, ok_from = lift(scan_from, xy_from)
+    ok = ok_to & ok_from
+    R, t, inl = ransac_rigid(p_from[ok], p_to[ok], threshold=threshold, seed=seed)
+    return R, t, int(inl.sum())
 
 
 def relative_pose(R_to: torch.Tensor, t_to: torch.Tensor, R_from: torch.Tensor,

@@ -98,4 +98,8 @@ def render_range_scan(scene: Scene, camera: PinholeCamera, noise_std: float = 0.
     uv1 = torch.stack([u, v, torch.ones_like(u)], dim=-1)
     pts = (uv1 @ torch.linalg.inv(camera.K).T) * noisy[..., None]  # HxWx3, z = noisy depth
     colors = (view.image[0].permute(1, 2, 0)[sl] * 255 + 0.5).to(torch.uint8)
-    return RangeScan(pts[hit], colors[hit], camera.R.clone(), camera.t.clone())
+    depth_map = torch.where(hit, noisy, torch.zeros_like(noisy))
+    K = camera.K.clone()
+    K[:2] /= stride  # pixel (u, v) of the strided grid is pixel (s u, s v) of the camera
+    return RangeScan(pts[hit], colors[hit], camera.R.clone(), camera.t.clone(), view.image[..., ::stride, ::stride],
+                     depth_map, K)

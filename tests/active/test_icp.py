@@ -122,3 +122,34 @@ def test_align_rendered_scans_and_write_ply(tmp_path):
     far_t[2] = far_t[2] + torch.tensor([20.0, 0.0, 0.0], dtype=torch.float64)
     with pytest.raises(StereoInputError, match=r"points\[2\].*do not overlap"):
         align_scans([s.points for s in scans], init_R, far_t, voxel=0.03)
+
+
+def test_ransac_rigid_ignores_outliers():
+    from stereonet.active.icp import ransac_rigid
+
+    g = torch.Generator().manual_seed(3)
+    P = _surface(60)
+    R = rotation_matrix([0.2, -0.4, 0.3])
+    t = torch.tensor([0.3, 0.1, -0.2], dtype=torch.float64)
+    Q = P @ R.T + t
+    Q[:20] = torch.rand(20, 3, generator=g, dtype=torch.float64) * 3  # a third are wrong matches
+    R_est, t_est, inl = ransac_rigid(P, Q, threshold=0.01)
+    assert rotation_error_deg(R_est, R) < 1e-6 and float((t_est - t).norm()) < 1e-6
+    assert inl[20:].all() and not inl[:20].any()
+    with pytest.raises(StereoInputError, match="no rigid motion"):
+        ransac_rigid(P, torch.rand(60, 3, generator=g, dtype=torch.float64) * 3, threshold=0.001)
+
+
+def test_feature_guess_between_rendered_scans():
+    from stereonet.active.demo import orbit_cameras
+    from stereonet.active.icp import feature_guess
+    from stereonet.active.render import render_range_scan
+    from stereonet.active.scenes import make_scene
+
+    scene = make_scene("textured", 0)
+    cams = orbit_cameras(2, spread_deg=12.0, width=160, height=120, focal=160.0)
+    a, b = (render_range_scan(scene, c, seed=i, max_range=4.0) for i, c in enumerate(cams))
+    R, t, n = feature_guess(a, b)
+    R_gt, t_gt = relative_pose(a.R, a.t, b.R, b.t)
+    assert n >= 6
+    assert rotation_error_deg(R, R_gt) < 1.5 and float((t - t_gt).norm()) < 0.05
