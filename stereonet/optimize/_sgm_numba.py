@@ -91,11 +91,16 @@ def sweep_groups(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.nonzero(down)[0], np.nonzero(~down)[0]
 
 
+CONCURRENT_MAX_BYTES = 256 * 2**20  # above this volume size the two sweeps share one buffer (sequential)
+
+
 def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Aggregated cost ``S`` (H, W, D) float32 of a cost ``(H, W, D)`` float32.
 
     The directions split into a top-down and a bottom-up sweep that run concurrently on two threads
-    (numba releases the GIL), each into its own buffer; the two are added at the end.
+    (numba releases the GIL), each into its own buffer, added at the end; for volumes above
+    :data:`CONCURRENT_MAX_BYTES` (e.g. KITTI at 192 disparities) they run one after the other into a single
+    buffer, so the peak memory stays at two volumes (cost + aggregate).
 
     Args:
         cost_hwd: C-contiguous float32 (H, W, D).
@@ -106,15 +111,16 @@ def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np
     P1 = np.float32(P1)
     p2 = np.ascontiguousarray(p2, dtype=np.float32)
     down, up = sweep_groups(dirs)
-    jobs = [(np.zeros_like(cost_hwd), np.ascontiguousarray(p2[g]), np.ascontiguousarray(dirs[g]), flag)
-            for g, flag in ((down, True), (up, False)) if g.size]
-    if len(jobs) == 1 or numba.get_num_threads() == 1:
-        for buf, p2g, dg, flag in jobs:
-            _sweep(cost_hwd, buf, P1, p2g, dg, flag)
-    else:
-        with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
-            list(pool.map(lambda j: _sweep(cost_hwd, *j[:1], P1, *j[1:]), jobs))
-    buffers = [j[0] for j in jobs]
+    groups = [(np.ascontiguousarray(p2[g]), np.ascontiguousarray(dirs[g]), flag)
+              for g, flag in ((down, True), (up, False)) if g.size]
+    if len(groups) == 1 or numba.get_num_threads() == 1 or cost_hwd.nbytes > CONCURRENT_MAX_BYTES:
+        total = np.zeros_like(cost_hwd)  # one buffer, the sweeps one after the other
+        for p2g, dg, flag in groups:
+            _sweep(cost_hwd, total, P1, p2g, dg, flag)
+        return total
+    buffers = [np.zeros_like(cost_hwd) for _ in groups]
+    with ThreadPoolExecutor(max_workers=len(groups)) as pool:
+        list(pool.map(lambda job: _sweep(cost_hwd, job[0], P1, *job[1]), zip(buffers, groups)))
     total = buffers[0]
     for other in buffers[1:]:
         _add_into(total, other)

@@ -65,3 +65,13 @@ def test_bad_input():
         sgm_aggregate(cost, 1, 2, image=torch.rand(1, 1, 5, 7))
     with pytest.raises(StereoInputError, match="backend"):
         sgm_aggregate(cost, 1, 2, backend="cuda")
+
+
+def test_numba_sequential_sweeps_equal(monkeypatch):
+    from stereonet.optimize import _sgm_numba
+
+    g = torch.Generator().manual_seed(5)
+    cost = torch.rand(1, 6, 9, 12, generator=g)
+    ref = sgm_aggregate_torch(cost, 0.1, 0.6, 8)
+    monkeypatch.setattr(_sgm_numba, "CONCURRENT_MAX_BYTES", 0)  # the large-volume (single buffer) branch
+    torch.testing.assert_close(sgm_aggregate(cost, 0.1, 0.6, 8, backend="numba"), ref, rtol=1e-6, atol=1e-5)
