@@ -112,7 +112,7 @@ def _mrf_problem(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: s
           description="Coarse-to-fine min-sum loopy belief propagation (Felzenszwalb-Huttenlocher), 4-connected, "
                       "contrast-weighted truncated-linear smoothness on an AD-Census cost")
 def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = DEFAULT_COST,
-               window: int = DEFAULT_WINDOW, smoothness: float = 0.4, truncation: float = 2.0,
+               window: int = DEFAULT_WINDOW, smoothness: float = 0.3, truncation: float = 4.0,
                iterations: int = 5, levels: int = 5, contrast_threshold: float = 0.03,
                contrast_factor: float = 3.0, subpixel: bool = True, cost_options: dict | None = None
                ) -> StereoOutput:
@@ -133,7 +133,7 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
           description="Graph cuts: alpha-expansion (Boykov-Veksler-Zabih) with PyMaxflow, contrast-weighted "
                       "truncated-linear smoothness on an AD-Census cost, started from WTA")
 def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = DEFAULT_COST,
-                     window: int = DEFAULT_WINDOW, smoothness: float = 0.4, truncation: float = 2.0,
+                     window: int = DEFAULT_WINDOW, smoothness: float = 0.3, truncation: float = 2.0,
                      cycles: int = 1, contrast_threshold: float = 0.03, contrast_factor: float = 3.0,
                      subpixel: bool = True, cost_options: dict | None = None) -> StereoOutput:
     """α-expansion. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
