@@ -2,7 +2,10 @@
 
 Shared encoder on both images down to 1/4, a 1-D correlation along the scanline at 1/4 resolution,
 an encoder on [correlation, left features] down to 1/16, and a decoder with skip connections that predicts
-disparity at every scale (1/16, 1/8, 1/4, 1/2, 1/1), each as a residual on the upsampled coarser one.
+disparity at every scale (1/16, 1/8, 1/4, 1/2, 1/1). The 1/16 and 1/8 predictions are regressed from the
+decoder (as in DispNet); from 1/4 on, each prediction is a residual on a coarser one, and the 1/4 one starts
+from a soft-argmin over the (lightly aggregated) correlation, so that the network matches from its first
+training step and the decoder only learns corrections (our change to DispNet for short CPU training).
 Every disparity in the output is in pixels of the *input* resolution, left-referenced.
 
 The network needs its input padded to a multiple of :attr:`DispNet.stride`; :func:`predict_disparity`
@@ -75,6 +78,8 @@ class DispNet(nn.Module):
         self.enc2 = nn.Sequential(conv_block(c, 2 * c, 3, stride=2), conv_block(2 * c, 2 * c))
         # left-only after the correlation: 1/8 and 1/16
         self.redir = conv_block(2 * c, c, 1)
+        self.corr_scale = nn.Parameter(torch.tensor(10.0))  # cosine similarity -> soft-argmin logits
+        self.corr_agg = nn.Sequential(conv_block(d4, d4), nn.Conv2d(d4, d4, 3, padding=1))
         self.enc3 = nn.Sequential(conv_block(d4 + c, 4 * c, 3, stride=2), conv_block(4 * c, 4 * c))
         self.enc4 = nn.Sequential(conv_block(4 * c, 6 * c, 3, stride=2), conv_block(6 * c, 6 * c))
         # decoder
@@ -104,7 +109,10 @@ class DispNet(nn.Module):
         e2 = self.enc2(e1)
         b = left.shape[0]
         e1_l, e2_l, e2_r = e1[:b], e2[:b], e2[b:]
-        corr = correlation_1d(e2_l, e2_r, self.corr_disp)  # BxD4xH/4xW/4
+        corr = correlation_1d(F.normalize(e2_l, dim=1), F.normalize(e2_r, dim=1), self.corr_disp)  # BxD4xH/4xW/4
+        logits = corr * self.corr_scale + self.corr_agg(corr)
+        levels = torch.arange(corr.shape[1], device=corr.device, dtype=corr.dtype).view(1, -1, 1, 1)
+        d_match = (logits.softmax(dim=1) * levels).sum(dim=1, keepdim=True) * 4.0  # Bx1xH/4xW/4, input pixels
         e3 = self.enc3(torch.cat([corr, self.redir(e2_l)], dim=1))
         e4 = self.enc4(e3)
 
@@ -112,7 +120,7 @@ class DispNet(nn.Module):
         x3 = self.dec3(torch.cat([self.up3(e4), e3, _up2(d4)], dim=1))
         d3 = _up2(d4) + self.pred3(x3) * self.disp_unit
         x2 = self.dec2(torch.cat([self.up2(x3), e2_l, corr, _up2(d3)], dim=1))
-        d2 = _up2(d3) + self.pred2(x2) * self.disp_unit
+        d2 = d_match + self.pred2(x2) * self.disp_unit
         x1 = self.dec1(torch.cat([self.up1(x2), e1_l, _up2(d2)], dim=1))
         d1 = _up2(d2) + self.pred1(x1) * self.disp_unit
         x0 = self.dec0(torch.cat([self.up0(x1), x_left, _up2(d1)], dim=1))

@@ -33,6 +33,14 @@ def _cached(path: str, mtime: float, expected: str):
     return load_weights(path, expected)[0]
 
 
+NETWORK_OF = {"dispnet": "dispnet", "smd": "smd", "siamese": "siamese", "siamese-sgm": "siamese"}
+
+
+def weights_available(name: str) -> bool:
+    """Whether the shipped weights of learned matcher ``name`` exist (KeyError for a name not defined here)."""
+    return default_weights_path(NETWORK_OF[name]).is_file()
+
+
 def load_network(expected: str, checkpoint: str | os.PathLike | None = None) -> torch.nn.Module:
     """The network for matcher family ``expected`` from ``checkpoint`` or the shipped weights (cached)."""
     path = Path(checkpoint) if checkpoint is not None else default_weights_path(expected)

@@ -59,6 +59,27 @@ class SiameseNet(nn.Module):
         x = F.pad(x, (self.radius,) * 4, mode="replicate")
         return F.normalize(self.tower(x), dim=1)
 
+    def patch_features(self, image: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """Unit features :math:`(B, F, N)` of the pixels at float positions ``x, y`` :math:`(B, N)`.
+
+        Equal to sampling :meth:`forward`'s map at integer positions (same standardisation and replicate
+        padding); fractional x interpolates the image bilinearly (sub-pixel positives).
+        """
+        b, n = x.shape
+        grey = F.pad(_grey_standardized(image), (self.radius,) * 4, mode="replicate")  # Bx1x(H+2r)x(W+2r)
+        hp, wp = grey.shape[-2:]
+        offs = torch.arange(-self.radius, self.radius + 1, device=x.device, dtype=x.dtype)
+        px = x[:, :, None, None] + self.radius + offs[None, None, None, :]  # BxNx1xK (padded coordinates)
+        py = y[:, :, None, None] + self.radius + offs[None, None, :, None]  # BxNxKx1
+        k = offs.numel()
+        grid = torch.stack([((2 * px + 1) / wp - 1).expand(b, n, k, k), ((2 * py + 1) / hp - 1).expand(b, n, k, k)],
+                           dim=-1)  # BxNxKxKx2
+        patches = F.grid_sample(grey, grid.reshape(b, n * k, k, 2), mode="bilinear", padding_mode="border",
+                                align_corners=False)  # Bx1x(N*K)xK
+        patches = patches.reshape(b, n, k, k).reshape(b * n, 1, k, k)  # (B*N)x1xKxK
+        feats = F.normalize(self.tower(patches).reshape(b, n, -1), dim=2)  # BxNxF
+        return feats.transpose(1, 2)
+
 
 def siamese_cost_volume(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int) -> torch.Tensor:
     """Matching cost ``1 - <f_l(x, y), f_r(x - d, y)>`` for d = 0..max_disp (lower = better).
@@ -78,56 +99,74 @@ def siamese_cost_volume(feat_left: torch.Tensor, feat_right: torch.Tensor, max_d
     return cost
 
 
-def _sample_right(feat_right: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Bilinearly sample unit features at float pixel positions x, y :math:`(B, N)` -> :math:`(B, F, N)`."""
-    _, _, h, w = feat_right.shape
-    grid = torch.stack([(2 * x + 1) / w - 1, (2 * y + 1) / h - 1], dim=-1)[:, None]  # Bx1xNx2
-    f = F.grid_sample(feat_right, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, :, 0]
-    return F.normalize(f, dim=1)
+def sample_training_pixels(disparity: torch.Tensor, valid: torch.Tensor, num_samples: int, neg_low: float,
+                           neg_high: float, generator: torch.Generator | None = None):
+    """Sample MC-CNN training triplets from ground truth.
 
-
-def siamese_pair_loss(feat_left: torch.Tensor, feat_right: torch.Tensor, disparity: torch.Tensor,
-                      valid: torch.Tensor, num_samples: int = 1024, margin: float = 0.2,
-                      neg_low: float = 1.5, neg_high: float = 8.0, loss: str = "hinge",
-                      generator: torch.Generator | None = None) -> torch.Tensor:
-    """MC-CNN training loss on pixel pairs sampled from ground truth (a pure function).
-
-    For ``num_samples`` valid left pixels per image: a positive at ``x - d`` and a negative at
-    ``x - d + o``, ``|o|`` uniform in [neg_low, neg_high] with random sign (kept inside the image).
-    ``loss="hinge"``: ``mean(max(0, margin + s_neg - s_pos))``; ``loss="bce"``: binary cross-entropy on
-    the similarities (scaled by 1/margin as logits).
+    For ``num_samples`` valid left pixels per image (whose true match lies inside the right image): the
+    left position (x, y), the positive right position ``x - d`` and a negative ``x - d + o`` with ``|o|``
+    uniform in [neg_low, neg_high] and a random sign (flipped if it leaves the image).
 
     Args:
-        feat_left, feat_right: unit features :math:`(B, F, H, W)`.
-        disparity: ground truth :math:`(B, 1, H, W)`; valid: bool :math:`(B, 1, H, W)` (non-occluded pixels).
+        disparity: :math:`(B, 1, H, W)`; valid: bool :math:`(B, 1, H, W)` (non-occluded pixels).
     Returns:
-        scalar loss.
+        ``(keep, x, y, x_pos, x_neg)``: ``keep`` bool :math:`(B,)` (images with at least one valid pixel),
+        the others :math:`(B', N)` float pixel coordinates of the kept images.
     """
-    b, _, h, w = feat_left.shape
-    dev = feat_left.device
-    x_l = torch.arange(w, device=dev, dtype=feat_left.dtype).expand(h, w)
+    b, _, h, w = disparity.shape
+    dev, dtype = disparity.device, disparity.dtype
+    x_l = torch.arange(w, device=dev, dtype=dtype).expand(h, w)
     ok = valid[:, 0] & (x_l - disparity[:, 0] >= 0)  # BxHxW: the true match lies inside the right image
-    weights = ok.reshape(b, -1).to(feat_left.dtype)
-    has_any = weights.sum(dim=1) > 0
-    if not bool(has_any.any()):
-        return feat_left.sum() * 0.0
-    weights = weights[has_any] + 0.0
-    fl, fr, disp = feat_left[has_any], feat_right[has_any], disparity[has_any]
-    idx = torch.multinomial(weights, num_samples, replacement=True, generator=generator)  # BxN
-    ys, xs = (idx // w).to(fl.dtype), (idx % w).to(fl.dtype)
-    d = disp.reshape(disp.shape[0], -1).gather(1, idx)
-    f_left = fl.reshape(fl.shape[0], fl.shape[1], -1).gather(2, idx[:, None].expand(-1, fl.shape[1], -1))  # BxFxN
-    offset = torch.empty_like(d).uniform_(neg_low, neg_high, generator=generator)
-    sign = torch.where(torch.rand(d.shape, generator=generator, device=dev) < 0.5, -1.0, 1.0).to(d.dtype)
+    weights = ok.reshape(b, -1).to(dtype)
+    keep = weights.sum(dim=1) > 0
+    if not bool(keep.any()):
+        empty = disparity.new_zeros(0, num_samples)
+        return keep, empty, empty, empty, empty
+    idx = torch.multinomial(weights[keep], num_samples, replacement=True, generator=generator)  # BxN
+    ys, xs = (idx // w).to(dtype), (idx % w).to(dtype)
+    d = disparity[keep].reshape(int(keep.sum()), -1).gather(1, idx)
+    offset = torch.rand(d.shape, generator=generator, device=dev, dtype=dtype) * (neg_high - neg_low) + neg_low
+    sign = torch.where(torch.rand(d.shape, generator=generator, device=dev) < 0.5, -1.0, 1.0).to(dtype)
     x_pos = xs - d
     x_neg = x_pos + sign * offset
     x_neg = torch.where((x_neg < 0) | (x_neg > w - 1), x_pos - sign * offset, x_neg).clamp(0, w - 1)
-    s_pos = (f_left * _sample_right(fr, x_pos, ys)).sum(dim=1)
-    s_neg = (f_left * _sample_right(fr, x_neg, ys)).sum(dim=1)
+    return keep, xs, ys, x_pos, x_neg
+
+
+def matching_loss(s_pos: torch.Tensor, s_neg: torch.Tensor, margin: float = 0.2, loss: str = "hinge") -> torch.Tensor:
+    """MC-CNN loss on similarities of positive and negative pairs (any equal shapes).
+
+    ``"hinge"``: ``mean(max(0, margin + s_neg - s_pos))``; ``"bce"``: binary cross-entropy with the
+    similarities scaled by ``1 / margin`` as logits (positives labelled 1, negatives 0).
+    """
     if loss == "hinge":
         return F.relu(margin + s_neg - s_pos).mean()
     if loss == "bce":
-        logits = torch.cat([s_pos, s_neg]) / margin
-        labels = torch.cat([torch.ones_like(s_pos), torch.zeros_like(s_neg)])
+        logits = torch.cat([s_pos.flatten(), s_neg.flatten()]) / margin
+        labels = torch.cat([torch.ones_like(s_pos.flatten()), torch.zeros_like(s_neg.flatten())])
         return F.binary_cross_entropy_with_logits(logits, labels)
     raise ValueError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
+
+
+def siamese_pair_loss(net: SiameseNet, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor,
+                      valid: torch.Tensor, num_samples: int = 512, margin: float = 0.2, neg_low: float = 1.5,
+                      neg_high: float = 8.0, loss: str = "hinge",
+                      generator: torch.Generator | None = None) -> torch.Tensor:
+    """MC-CNN training loss on patches sampled from ground truth (see :func:`sample_training_pixels`).
+
+    Only the sampled patches go through the network (as MC-CNN trains), so a step costs
+    ``3 * num_samples`` patch evaluations per image instead of two dense feature maps.
+
+    Args:
+        left, right: images :math:`(B, C, H, W)`; disparity :math:`(B, 1, H, W)`; valid bool :math:`(B, 1, H, W)`.
+    Returns:
+        scalar loss (0 with a gradient path when no pixel is valid).
+    """
+    keep, xs, ys, x_pos, x_neg = sample_training_pixels(disparity, valid, num_samples, neg_low, neg_high,
+                                                        generator)
+    if xs.numel() == 0:
+        return sum(p.sum() for p in net.parameters()) * 0.0
+    f_left = net.patch_features(left[keep], xs, ys)  # BxFxN
+    f_pos = net.patch_features(right[keep], x_pos, ys)
+    f_neg = net.patch_features(right[keep], x_neg, ys)
+    return matching_loss((f_left * f_pos).sum(1), (f_left * f_neg).sum(1), margin, loss)

@@ -84,15 +84,17 @@ class StereoModule(L.LightningModule):
         return trainer_progress(self.trainer, self.hparams.schedule_steps)
 
     def compute(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
-        """(loss, full-resolution prediction (B,1,H,W), extra scalars to log)."""
+        """(loss, full-resolution prediction (B,1,H,W) or None if not computed, extra scalars to log)."""
         raise NotImplementedError
 
     def _shared_step(self, batch: dict, stage: str) -> torch.Tensor:
         loss, pred, extra = self.compute(batch)
-        errors = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
         bs = batch["left"].shape[0]
         on_step = stage == "train"
         self.log(f"{stage}/loss", loss.detach(), prog_bar=True, batch_size=bs, on_step=on_step, on_epoch=not on_step)
+        if pred is None:  # a model that predicts densely only outside training (Siamese)
+            return loss
+        errors = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
         self.log(f"{stage}/epe", errors["epe"], prog_bar=True, batch_size=bs, on_step=on_step, on_epoch=not on_step)
         self.log(f"{stage}/bad2", errors["bad2"], batch_size=bs, on_step=on_step, on_epoch=not on_step)
         for k, v in extra.items():
@@ -227,7 +229,7 @@ class SiameseModule(StereoModule):
     model_name = "siamese"
 
     def __init__(self, channels: int = 32, layers: int = 4, loss: str = "hinge", margin: float = 0.2,
-                 neg_low: float = 1.5, neg_high: float = 8.0, num_samples: int = 2048, max_disp: int = 64,
+                 neg_low: float = 1.5, neg_high: float = 8.0, num_samples: int = 256, max_disp: int = 64,
                  lr: float = 1e-3, weight_decay: float = 0.0, schedule_steps: int = 5000) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
@@ -243,14 +245,15 @@ class SiameseModule(StereoModule):
 
     def compute(self, batch: dict):
         hp = self.hparams
-        b = batch["left"].shape[0]
-        feats = self.model(torch.cat([batch["left"], batch["right"]]))  # 2BxFxHxW: one pass for both views
-        feat_left, feat_right = feats[:b], feats[b:]
         valid = batch.get("nonoccluded", batch["valid"])
-        loss = siamese_pair_loss(feat_left, feat_right, batch["disparity"], valid, hp.num_samples, hp.margin,
-                                 hp.neg_low, hp.neg_high, hp.loss)
+        loss = siamese_pair_loss(self.model, batch["left"], batch["right"], batch["disparity"], valid,
+                                 hp.num_samples, hp.margin, hp.neg_low, hp.neg_high, hp.loss)
+        if self.training:  # dense matching only where it is reported (validation): it costs more than the loss
+            return loss, None, {}
         with torch.no_grad():
+            b = batch["left"].shape[0]
+            feats = self.model(torch.cat([batch["left"], batch["right"]]))  # 2BxFxHxW: one pass for both views
             max_disp = min(hp.max_disp, batch["left"].shape[-1] - 1)
-            cost = siamese_cost_volume(feat_left.detach(), feat_right.detach(), max_disp)
-            pred = cost.argmin(dim=1, keepdim=True).to(feat_left.dtype)
+            cost = siamese_cost_volume(feats[:b], feats[b:], max_disp)
+            pred = cost.argmin(dim=1, keepdim=True).to(feats.dtype)
         return loss, pred, {}

@@ -1,0 +1,192 @@
+"""Learned networks: shapes, padding to the stride, statelessness, correlation, mixture, weights files."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from stereonet.checks import StereoInputError
+from stereonet.models.dispnet import DispNet, DispNetOutput, predict_disparity
+from stereonet.models.layers import InputPadder, correlation_1d
+from stereonet.models.siamese import (
+    INVALID_COST,
+    SiameseNet,
+    matching_loss,
+    siamese_cost_volume,
+    siamese_pair_loss,
+)
+from stereonet.models.smd import MixtureParams, SMDNet, predict_smd, query_grid
+from stereonet.models.weights import load_weights, save_weights
+
+
+@pytest.fixture
+def small_dispnet():
+    torch.manual_seed(0)
+    return DispNet(max_disp=16, channels=8).eval()
+
+
+@pytest.mark.parametrize("hw", [(32, 64), (37, 50), (17, 33)])
+def test_predict_pads_and_unpads_never_crops(small_dispnet, hw):
+    left, right = torch.rand(1, 3, *hw), torch.rand(1, 3, *hw)
+    disp = predict_disparity(small_dispnet, left, right)
+    assert disp.shape == (1, 1, *hw)
+    assert torch.isfinite(disp).all()
+
+
+def test_input_padder_roundtrip():
+    x = torch.rand(2, 3, 37, 50)
+    padder = InputPadder(37, 50, 16)
+    (p,) = padder.pad(x)
+    assert p.shape[-2:] == (48, 64)
+    assert torch.equal(padder.unpad(p), x)
+    assert torch.equal(p[..., 36:, :50][:, :, -1], p[..., 47, :50])  # replicate padding
+
+
+def test_forward_rejects_unpadded_input(small_dispnet):
+    with pytest.raises(ValueError, match="multiples of 16"):
+        small_dispnet(torch.rand(1, 3, 30, 64), torch.rand(1, 3, 30, 64))
+
+
+def test_dispnet_stateless_same_structure_train_and_eval(small_dispnet):
+    left, right = torch.rand(2, 3, 32, 64), torch.rand(2, 3, 32, 64)
+    outs = []
+    for mode in (True, False):
+        small_dispnet.train(mode)
+        out = small_dispnet(left, right)
+        assert isinstance(out, DispNetOutput)
+        outs.append(out)
+    assert [p.shape for p in outs[0].pyramid] == [p.shape for p in outs[1].pyramid]
+    assert [tuple(p.shape[-2:]) for p in outs[0].pyramid] == [(2, 4), (4, 8), (8, 16), (16, 32), (32, 64)]
+    assert torch.allclose(outs[0].disparity, outs[1].disparity)  # no dropout/BN: identical
+    assert not any(isinstance(v, torch.Tensor) for v in vars(small_dispnet).values())
+
+
+def test_correlation_matches_naive_loop():
+    g = torch.Generator().manual_seed(1)
+    fl, fr = torch.rand(2, 4, 3, 10, generator=g), torch.rand(2, 4, 3, 10, generator=g)
+    corr = correlation_1d(fl, fr, 3)
+    for d in range(4):
+        for x in range(10):
+            want = (fl[..., x] * fr[..., x - d]).mean(1) if x - d >= 0 else torch.zeros(2, 3)
+            assert torch.allclose(corr[:, d, :, x], want)
+
+
+def test_correlation_gradcheck():
+    g = torch.Generator().manual_seed(2)
+    fl = torch.rand(1, 2, 2, 5, generator=g, dtype=torch.float64, requires_grad=True)
+    fr = torch.rand(1, 2, 2, 5, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b: correlation_1d(a, b, 2), (fl, fr))
+
+
+def test_smd_queries_at_higher_resolution_and_uncertainty():
+    torch.manual_seed(0)
+    net = SMDNet(max_disp=16, channels=8).eval()
+    left, right = torch.rand(1, 3, 30, 40), torch.rand(1, 3, 30, 40)
+    disp, unc = predict_smd(net, left, right)
+    assert disp.shape == unc.shape == (1, 1, 30, 40)
+    disp2, unc2 = predict_smd(net, left, right, upsample=2.0)
+    assert disp2.shape == (1, 1, 60, 80)
+    assert (unc > 0).all() and (unc2 > 0).all()
+    # values are in pixels of the output grid: the 2x map is about twice the 1x one
+    assert torch.allclose(disp2[..., ::2, ::2].mean(), 2 * disp.mean(), rtol=0.2)
+
+
+def test_smd_stateless_same_structure():
+    torch.manual_seed(0)
+    net = SMDNet(max_disp=16, channels=8)
+    left, right = torch.rand(1, 3, 32, 32), torch.rand(1, 3, 32, 32)
+    a = net.train()(left, right)
+    b = net.eval()(left, right)
+    assert type(a) is type(b) and a.disparity.shape == b.disparity.shape
+    assert torch.allclose(a.disparity, b.disparity)
+
+
+def test_mixture_mode_picks_higher_density():
+    ones = torch.ones(1, 1, 1, 2)
+    mix = MixtureParams(mu1=ones * 3, mu2=ones * 10, b1=torch.tensor([[[[1.0, 1.0]]]]),
+                        b2=torch.tensor([[[[1.0, 0.1]]]]), pi=torch.tensor([[[[0.7, 0.3]]]]))
+    disp, scale = mix.mode_disparity()
+    assert disp.flatten().tolist() == [3.0, 10.0]  # 0.7/1 > 0.3/1 ; 0.7/1 < 0.3/0.1
+    assert scale.flatten().tolist() == pytest.approx([1.0, 0.1])
+
+
+def test_query_grid_hits_pixel_centres():
+    grid = query_grid(1, 2, 4)
+    assert grid.shape == (1, 2, 4, 2)
+    assert torch.allclose(grid[0, 0, :, 0], torch.tensor([-0.75, -0.25, 0.25, 0.75]))
+
+
+def test_siamese_features_unit_length_and_cost_volume():
+    torch.manual_seed(0)
+    net = SiameseNet(channels=8, layers=3)
+    img = torch.rand(2, 3, 20, 30)
+    f = net(img)
+    assert f.shape == (2, 8, 20, 30)
+    assert torch.allclose(f.norm(dim=1), torch.ones(2, 20, 30), atol=1e-5)
+    cost = siamese_cost_volume(f, f.roll(1, dims=0), 5)
+    assert cost.shape == (2, 6, 20, 30)
+    assert (cost[:, 3, :, :3] == INVALID_COST).all()
+    y, x, d = 4, 10, 3
+    assert torch.allclose(cost[0, d, y, x], 1 - (f[0, :, y, x] * f[1, :, y, x - d]).sum())
+
+
+def test_siamese_cost_finds_shift_on_textured_pair(textured_pair):
+    """Even untrained, random 3x3 filters on random texture give the lowest cost at the true shift."""
+    left, right, d = textured_pair
+    torch.manual_seed(0)
+    net = SiameseNet(channels=16, layers=3)
+    with torch.no_grad():
+        cost = siamese_cost_volume(net(left), net(right), 10)
+    wta = cost.argmin(1)[..., 10:]
+    assert (wta == d).float().mean() > 0.9
+
+
+def test_patch_features_equal_dense_features():
+    torch.manual_seed(0)
+    net = SiameseNet(channels=8, layers=3)
+    img = torch.rand(2, 3, 20, 30)
+    dense = net(img)
+    x = torch.tensor([[0.0, 5, 29], [3, 7, 12]])
+    y = torch.tensor([[0.0, 19, 4], [10, 2, 7]])
+    patches = net.patch_features(img, x, y)
+    ref = torch.stack([dense[b, :, y[b].long(), x[b].long()] for b in range(2)])
+    assert torch.allclose(patches, ref, atol=1e-5)
+
+
+def test_siamese_loss_prefers_true_disparity(textured_pair):
+    left, right, d = textured_pair
+    torch.manual_seed(0)
+    net = SiameseNet(channels=8, layers=2)
+    disp = torch.full((1, 1, *left.shape[-2:]), float(d))
+    valid = torch.ones_like(disp, dtype=torch.bool)
+    good = siamese_pair_loss(net, left, right, disp, valid, 256, generator=torch.Generator().manual_seed(0))
+    bad = siamese_pair_loss(net, left, right, disp + 4, valid, 256, generator=torch.Generator().manual_seed(0))
+    assert good < bad
+    assert siamese_pair_loss(net, left, right, disp, torch.zeros_like(valid), 16) == 0
+    with pytest.raises(ValueError, match="loss"):
+        matching_loss(torch.zeros(3), torch.zeros(3), loss="nope")
+    assert matching_loss(torch.ones(3), torch.zeros(3), margin=0.2) == 0
+
+
+def test_weights_roundtrip_and_errors(tmp_path, small_dispnet):
+    path = tmp_path / "dispnet.pt"
+    save_weights(path, "dispnet", {"max_disp": 16, "channels": 8}, small_dispnet)
+    net, info = load_weights(path, expected="dispnet")
+    assert info["model"] == "dispnet"
+    for a, b in zip(net.state_dict().values(), small_dispnet.state_dict().values()):
+        assert torch.equal(a, b)
+    with pytest.raises(StereoInputError, match="expected a 'smd' model, got a 'dispnet'"):
+        load_weights(path, expected="smd")
+    with pytest.raises(FileNotFoundError, match="not found"):
+        load_weights(tmp_path / "missing.pt", expected="dispnet")
+    wrong = tmp_path / "wrong.pt"
+    save_weights(wrong, "dispnet", {"max_disp": 16, "channels": 16}, small_dispnet)  # config says 16 channels
+    with pytest.raises(StereoInputError, match="does not fit"):
+        load_weights(wrong)
+    junk = tmp_path / "junk.pt"
+    torch.save({"a": torch.zeros(1)}, junk)
+    with pytest.raises(StereoInputError, match="not a stereonet"):
+        load_weights(junk)
+    (tmp_path / "garbage.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(StereoInputError, match="not a readable"):
+        load_weights(tmp_path / "garbage.pt")

@@ -1,0 +1,206 @@
+"""Training: losses, schedules, every YAML through LightningCLI (fast_dev_run), overfitting one batch,
+atomic checkpoints and resuming after a kill."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from stereonet.models.siamese import siamese_pair_loss
+from stereonet.training.callbacks import AtomicCheckpointIO
+from stereonet.training.curriculum import difficulty_at
+from stereonet.training.data import RandomShiftStereo, collate_pairs, gt_nonoccluded, swap_flip
+from stereonet.training.losses import bimodal_laplacian_nll, coarse_to_fine_weights, multiscale_l1_loss
+from stereonet.training.module import DispNetModule, SiameseModule, SMDModule
+
+CONFIGS = sorted((Path(__file__).resolve().parents[2] / "configs").glob("*.yaml"))
+TINY = ["--data.source", "random-shift", "--data.height", "32", "--data.width", "64", "--data.batch_size", "2",
+        "--data.val_pairs", "2", "--data.pool_size", "2", "--data.reuse", "1"]
+
+
+def _cli(args):
+    from stereonet.cli.train import main
+
+    return main(args=args, run=False)
+
+
+def test_configs_exist():
+    assert {p.stem for p in CONFIGS} >= {"dispnet", "smd", "siamese"}
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=[p.stem for p in CONFIGS])
+def test_every_config_survives_fast_dev_run(config, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cli = _cli(["--config", str(config), *TINY, "--trainer.fast_dev_run", "true"])
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+    assert cli.trainer.state.finished
+    assert cli.trainer.global_step == 1
+    assert torch.isfinite(cli.trainer.callback_metrics["val/epe"])
+
+
+def test_unknown_config_key_is_rejected(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit):
+        _cli(["--config", str(CONFIGS[0]), "--model.init_args.no_such_key", "1"])
+    with pytest.raises(SystemExit):
+        _cli(["--config", str(CONFIGS[0]), "--data.batch_size", "four"])
+
+
+def test_coarse_to_fine_weights_move():
+    first, last = coarse_to_fine_weights(0.0, 5), coarse_to_fine_weights(1.0, 5)
+    assert max(range(5), key=first.__getitem__) == 0
+    assert max(range(5), key=last.__getitem__) == 4
+    assert sum(first) == pytest.approx(1.0) and sum(last) == pytest.approx(1.0)
+
+
+def test_curriculum_easy_first():
+    levels = [difficulty_at(p / 100, 4, 0.5) for p in range(101)]
+    assert levels[0] == 0 and levels[-1] == 4 and levels[50] == 4
+    assert all(a <= b for a, b in zip(levels, levels[1:]))
+    assert difficulty_at(0.0, 4, 0.0) == 4  # no curriculum
+
+
+def test_multiscale_loss_zero_at_truth():
+    gt = torch.rand(1, 1, 16, 32) * 5
+    valid = torch.ones_like(gt, dtype=torch.bool)
+    pyramid = [torch.nn.functional.interpolate(gt, scale_factor=1 / s, mode="area") for s in (4, 2)] + [gt]
+    total, per_scale = multiscale_l1_loss(pyramid, gt, valid, [0.0, 0.0, 1.0])
+    assert total == 0 and per_scale[0] > 0
+    with pytest.raises(ValueError, match="weights"):
+        multiscale_l1_loss(pyramid, gt, valid, [1.0])
+
+
+def test_bimodal_nll_reduces_to_laplacian_and_gradcheck():
+    mu1, mu2 = torch.tensor([[[[2.0]]]]), torch.tensor([[[[9.0]]]])
+    b1, b2 = torch.tensor([[[[0.5]]]]), torch.tensor([[[[1.0]]]])
+    target, valid = torch.tensor([[[[2.5]]]]), torch.ones(1, 1, 1, 1, dtype=torch.bool)
+    nll = bimodal_laplacian_nll(mu1, mu2, b1, b2, torch.ones_like(mu1) - 1e-7, target, valid)
+    assert nll == pytest.approx(float(torch.log(2 * b1) + 0.5 / b1), rel=1e-4)
+    g = torch.Generator().manual_seed(0)
+    args = [torch.rand(1, 1, 2, 3, generator=g, dtype=torch.float64) * s + o
+            for s, o in ((5, 0), (5, 0), (1, 0.2), (1, 0.2), (0.8, 0.1))]
+    args = [a.requires_grad_() for a in args]
+    tgt = torch.rand(1, 1, 2, 3, generator=g, dtype=torch.float64) * 5
+    assert torch.autograd.gradcheck(lambda *a: bimodal_laplacian_nll(*a, tgt, torch.ones_like(tgt, dtype=torch.bool)),
+                                    tuple(args))
+
+
+def test_swap_flip_gives_a_consistent_pair():
+    left, right = torch.rand(3, 4, 8), torch.rand(3, 4, 8)
+    d, dr = torch.rand(1, 4, 8), torch.rand(1, 4, 8)
+    v = torch.ones(1, 4, 8, dtype=torch.bool)
+    out = swap_flip({"left": left, "right": right, "disparity": d, "disparity_right": dr, "valid": v,
+                     "valid_right": v})
+    assert torch.equal(out["left"], right.flip(-1)) and torch.equal(out["disparity"], dr.flip(-1))
+    assert swap_flip({"left": left})["left"] is left
+
+
+def test_gt_nonoccluded_marks_occluded_strip():
+    d = torch.zeros(1, 1, 10)
+    d[..., 5:] = 3.0  # foreground on the right half: background pixels 2..4 are hidden in the right view
+    dr = torch.zeros(1, 1, 10)
+    dr[..., 2:7] = 3.0
+    noc = gt_nonoccluded(d, dr)
+    assert noc[0, 0, :2].all() and noc[0, 0, 5:].all()
+
+
+def _one_batch():
+    ds = RandomShiftStereo(2, seed=0, height=32, width=64, max_disp=8)
+    return collate_pairs([ds[0], ds[1]])
+
+
+@pytest.fixture
+def one_thread():
+    """Tiny networks run faster on one thread (no spinning worker threads on a busy machine)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _fit(loss_fn, params, steps: int, lr: float) -> tuple[float, float]:
+    opt = torch.optim.Adam(params, lr=lr)
+    first = None
+    for _ in range(steps):
+        loss = loss_fn()
+        first = float(loss.detach()) if first is None else first
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return first, float(loss_fn().detach())
+
+
+def test_overfit_one_batch_dispnet(one_thread):
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = DispNetModule(max_disp=16, channels=8)
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 60, 3e-3)
+    assert final < 0.1 * first and final < 0.5, (first, final)  # multi-scale L1 below half a pixel
+
+
+def test_overfit_one_batch_siamese(one_thread):
+    """The same sampled pairs every step (one batch): the hinge loss goes to zero."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = SiameseModule(channels=16, layers=3, num_samples=64)
+    valid = batch["valid"]
+
+    def loss():
+        return siamese_pair_loss(module.model, batch["left"], batch["right"], batch["disparity"], valid, 64,
+                                 generator=torch.Generator().manual_seed(0))
+
+    first, final = _fit(loss, module.parameters(), 40, 1e-2)
+    assert final < 0.05 * first, (first, final)
+
+
+def test_smd_loss_decreases_on_one_batch(one_thread):
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = SMDModule(max_disp=16, channels=8, lr=3e-3)
+    opt = torch.optim.Adam(module.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(20):
+        loss, pred, extra = module.compute(batch)
+        losses.append(float(loss))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert losses[-1] < 0.5 * losses[0]
+    assert pred.shape == batch["disparity"].shape and "nll" in extra
+
+
+def test_atomic_checkpoint_keeps_old_file_on_failure(tmp_path, monkeypatch):
+    io = AtomicCheckpointIO()
+    path = tmp_path / "last.ckpt"
+    io.save_checkpoint({"step": 1}, path)
+    assert torch.load(path)["step"] == 1
+
+    def crash(obj, f, *a, **k):
+        Path(f).write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", crash)
+    with pytest.raises(KeyboardInterrupt):
+        io.save_checkpoint({"step": 2}, path)
+    monkeypatch.undo()
+    assert torch.load(path)["step"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["last.ckpt"]
+
+
+def test_resume_from_last_checkpoint(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    config = next(p for p in CONFIGS if p.stem == "siamese")
+    common = ["--config", str(config), *TINY, "--model.init_args.max_disp", "8", "--trainer.logger", "false",
+              "--trainer.val_check_interval", "2", "--trainer.enable_progress_bar", "false",
+              "--trainer.callbacks.init_args.every_n_train_steps", "2"]
+    cli = _cli([*common, "--trainer.max_steps", "2"])
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+    last = tmp_path / "lightning_logs" / "siamese" / "checkpoints" / "last.ckpt"
+    assert last.is_file()
+    ckpt = torch.load(last, weights_only=True)
+    assert ckpt["global_step"] == 2 and ckpt["stereonet_model"]["model"] == "siamese"
+    cli = _cli([*common, "--trainer.max_steps", "4"])
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule, ckpt_path="last")
+    assert cli.trainer.global_step == 4
