@@ -69,3 +69,21 @@ def select_hwd(vol, method, ratio, lr_tol):
                 else:
                     lr_ok[y, x] = abs(disp[y, x] - disp_right[y, int(xr)]) <= lr_tol
     return disp, min_cost, unique, disp_right, lr_ok
+
+
+@numba.njit(parallel=True, cache=True)
+def wta_right_hwd(vol):
+    """Right-reference WTA (H, W) float32 of a left-reference (H, W, D) volume, ties to the smallest d."""
+    H, W, D = vol.shape
+    disp_right = np.zeros((H, W), np.float32)
+    for y in prange(H):
+        best = np.empty(W, np.float32)
+        for x in range(W):
+            best[x] = vol[y, x, 0]
+        for x in range(W):
+            for d in range(1, min(D, x + 1)):
+                v = vol[y, x, d]
+                if v < best[x - d]:
+                    best[x - d] = v
+                    disp_right[y, x - d] = d
+    return disp_right

@@ -35,10 +35,17 @@ def wta_right(cost: torch.Tensor) -> torch.Tensor:
 
     Returns:
         :math:`(B, 1, H, W)` integer-valued right-reference disparity ``disparity_right`` (dtype of cost);
-        ties resolve to the smallest disparity.
+        ties resolve to the smallest disparity. A float32 CPU volume runs the numba kernel
+        :func:`stereonet.optimize._select_numba.wta_right_hwd` (one pass, same result).
     """
     check_cost_volume(cost)
     b, n, h, w = cost.shape
+    if cost.device.type == "cpu" and cost.dtype == torch.float32:
+        from stereonet.optimize._select_numba import wta_right_hwd
+
+        outs = [torch.from_numpy(wta_right_hwd(cost[i].detach().permute(1, 2, 0).contiguous().numpy()))
+                for i in range(b)]
+        return torch.stack(outs)[:, None]
     best = cost[:, 0].clone()  # BxHxW, d = 0 always valid
     arg = torch.zeros_like(best)
     for d in range(1, min(n, w)):

@@ -150,3 +150,11 @@ def test_dsi_scanline_and_plot(tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(StereoInputError, match="row"):
         dsi_scanline(vol, 32)
+
+
+def test_wta_right_numba_equals_loop():
+    g = torch.Generator().manual_seed(8)
+    vol = torch.randint(0, 5, (2, 6, 7, 11), generator=g).float()  # many ties
+    fast = wta_right(vol)
+    ref = wta(right_cost_volume(vol.double()))[0].float()
+    torch.testing.assert_close(fast, ref)
