@@ -8,7 +8,8 @@ their times and the ratios to ``opencv-sgbm`` are measured under the same load. 
 is the **median over pairs** (robust to one odd pair); the shared filling of ``eval.py --fill`` is applied
 to every method (dense comparison) and the raw bad-2 and density before filling are reported beside it.
 ``--budget`` bounds the run: once a method has used that many seconds on one dataset its remaining pairs
-there are skipped, and the table says so.
+there are skipped, and ``--pair-cap`` skips a pair whose projected time (from the method's speed per pixel
+and disparity so far) is above it; the tables count the skipped pairs.
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ def markdown_table(rows: Sequence[dict], group: str) -> str:
                  key=lambda r: (r["bad2"] is None, r["bad2"] if r["bad2"] is not None else 0))
     for r in sel:
         note = "".join([f" ({r['failed']} failed)" if r["failed"] else "",
-                        f" ({r['skipped']} skipped: time budget)" if r["skipped"] else ""])
+                        f" ({r['skipped']} skipped: time cap)" if r["skipped"] else ""])
         lines.append("| " + " | ".join([
             f"`{r['method']}`{note}", str(r["pairs"]), _fmt(r["epe"], ".2f"), _fmt(r["bad1"], ".1f"),
             _fmt(r["bad2"], ".1f"), _fmt(r["bad4"], ".1f"), _fmt(r["d1"], ".1f"), _fmt(r["see"], ".2f"),
@@ -181,7 +182,7 @@ def _environment() -> str:
 
 def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: Path, plots_tmp: Path,
                  synthetic_spec: str, seconds_total: float, skipped: Sequence[str] = (),
-                 load: tuple[float, float] | None = None) -> None:
+                 load: tuple[float, float] | None = None, caps: str = "") -> None:
     from stereonet import matchers
     from stereonet.io.atomic import atomic_write_text
 
@@ -206,7 +207,7 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
         "as errors), EPE and SEE (SMD-Nets soft edge error on depth discontinuities) are in pixels; `noc` = "
         "non-occluded pixels (datasets with an occlusion mask). `× sgbm time` and `÷ sgbm bad-2` are ratios to "
         f"`{REFERENCE}` medians on the same pairs; peak MiB is the extra resident memory of one call (see "
-        "`stereonet/cli/common.py`). Rows are sorted by bad-2.",
+        f"`stereonet/cli/common.py`). Rows are sorted by bad-2. {caps}",
         "",
     ]
     parts += headline(rows, list(groups))
@@ -256,6 +257,8 @@ def build_parser() -> OneLineParser:
     p.add_argument("--no-real", action="store_true", help="skip ../shared/data")
     p.add_argument("--budget", type=float, default=45.0,
                    help="seconds a method may spend per dataset before its remaining pairs are skipped")
+    p.add_argument("--pair-cap", type=float, default=40.0,
+                   help="skip a pair when a method's projected time for it (from its speed so far) exceeds this")
     p.add_argument("--out", type=Path, default=REPO / "BENCHMARKS.md")
     p.add_argument("--docs", type=Path, default=REPO / "docs" / "bench")
     p.add_argument("--no-progress", action="store_true")
@@ -288,10 +291,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         t0, load0 = time.perf_counter(), _load_average()
         with tempfile.TemporaryDirectory(prefix="stereonet-bench-") as tmp:
             ev = run_evaluation(methods, specs, fill=True, plots=Path(tmp), progress=not args.no_progress,
-                                budget=args.budget)
+                                budget=args.budget, pair_cap=args.pair_cap)
             load = None if load0 is None else (load0, _load_average() or load0)
             write_report(ev, groups, args.out.resolve(), args.docs.resolve(), Path(tmp), synthetic or "none",
-                         time.perf_counter() - t0, skipped, load)
+                         time.perf_counter() - t0, skipped, load,
+                         f"Time caps: a method's remaining pairs on a dataset are skipped after {args.budget:g} s "
+                         f"there, and a pair is skipped when its projected time exceeds {args.pair_cap:g} s; "
+                         "skipped pairs are counted in the method column.")
     except USER_ERRORS as e:
         return fail(PROG, e)
     except ImportError as e:

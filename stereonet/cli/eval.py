@@ -207,14 +207,15 @@ def _warm_up(fn: Callable, item: dict, max_disp: int) -> None:
 def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int | None = None, fill: bool = False,
                    shard: tuple[int, int] = (0, 1), plots: Path | None = None, progress: bool = True,
                    options: dict[str, dict] | None = None, load: Callable | None = None,
-                   budget: float | None = None) -> Evaluation:
+                   budget: float | None = None, pair_cap: float | None = None) -> Evaluation:
     """Run every method on every pair of every dataset spec; return per-pair results and table rows.
 
     ``load`` (default :func:`stereonet.data.load_dataset`) maps a spec to a dataset of item dicts; it is
     called for every spec before anything runs, so a bad spec fails fast. ``options[name]`` are keyword
     options bound to matcher ``name``. ``budget``: once a method has used this many seconds on one dataset,
     its remaining pairs there are skipped (counted in the row's ``skipped`` key) - for benchmarks that must
-    finish in bounded time.
+    finish in bounded time. ``pair_cap``: a pair is skipped when the method's projected time for it exceeds
+    this many seconds, projected from its median time per unit of work (H x W x (max_disp + 1)) so far.
     """
     from tqdm import tqdm
 
@@ -230,6 +231,7 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
     result = Evaluation()
     warmed: set[str] = set()
     spent: dict[tuple[str, str], float] = {}
+    rates: dict[str, list[float]] = {}  # seconds per H*W*(max_disp+1) of each method's runs so far
     with tqdm(total=total, desc="eval", unit="run", disable=not progress, file=sys.stderr,
               dynamic_ncols=True) as bar:
         for label, ds in datasets:
@@ -239,9 +241,12 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                 md = int(max_disp if max_disp is not None else item["max_disp"])
                 left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
                 outs: dict[str, StereoOutput | None] = {}
+                work = float(left.shape[-2] * left.shape[-1] * (md + 1))
                 for m in methods:
                     bar.set_postfix_str(f"{label}/{name} {m}", refresh=False)
-                    if budget is not None and spent.get((m, label), 0.0) > budget:
+                    projected = float(np.median(rates[m])) * work if rates.get(m) else 0.0
+                    if (budget is not None and spent.get((m, label), 0.0) > budget) or \
+                            (pair_cap is not None and projected > pair_cap):
                         result.pairs.append(PairResult(m, label, name, None, None, math.nan, math.nan, skipped=True))
                         outs[m] = None
                         bar.update(1)
@@ -251,7 +256,9 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                         warmed.add(m)
                     res, out = _run_one(fns[m], left, right, md, item, fill)
                     result.pairs.append(PairResult(m, label, name, *res))
-                    spent[(m, label)] = spent.get((m, label), 0.0) + (0.0 if math.isnan(res[2]) else res[2])
+                    if not math.isnan(res[2]):
+                        spent[(m, label)] = spent.get((m, label), 0.0) + res[2]
+                        rates.setdefault(m, []).append(res[2] / work)
                     outs[m] = out
                     bar.update(1)
                 if plots is not None:

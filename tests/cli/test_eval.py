@@ -212,3 +212,10 @@ def test_middlebury2014_folder_end_to_end(tmp_path):
         assert ROW_KEYS <= set(r) and r["dataset"] == "middlebury2014:mb2014" and r["pairs"] == 2
         assert r["bad2_noc"] is not None and r["bad2_noc"] <= r["bad2"] + 1e-9
         assert 0 < r["density"] < 100  # invalid OpenCV pixels are reported, not hidden
+
+
+def test_pair_cap_skips_projected_slow_pairs():
+    result = ev.run_evaluation(["opencv-bm"], ["fake"], progress=False, load=lambda s: tiny_dataset(s, n=3),
+                               pair_cap=1e-9)
+    row = result.rows[0]
+    assert row["pairs"] == 1 and row["skipped"] == 2  # the first pair runs: nothing to project from yet
