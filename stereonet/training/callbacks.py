@@ -9,6 +9,7 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Timer
 from lightning.pytorch.plugins.io import TorchCheckpointIO
+from lightning.pytorch.trainer.states import RunningStage
 
 from stereonet.io.atomic import atomic_path
 from stereonet.training.curriculum import training_progress
@@ -35,7 +36,7 @@ def trainer_progress(trainer: L.Trainer, fallback_steps: int) -> float:
     progress = training_progress(trainer.global_step, trainer.max_steps, fallback_steps)
     for cb in trainer.callbacks:
         if isinstance(cb, Timer) and cb._duration:
-            progress = max(progress, min(cb.time_elapsed("train") / cb._duration, 1.0))
+            progress = max(progress, min(cb.time_elapsed(RunningStage.TRAINING) / cb._duration, 1.0))
     return progress
 
 
