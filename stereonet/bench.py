@@ -14,7 +14,9 @@ and disparity so far) is above it; the tables count the skipped pairs.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
+import json
 import math
 import os
 import platform
@@ -54,24 +56,39 @@ def median_of(pairs: Sequence[PairResult], key: str, raw: bool = False) -> float
     return float(np.median(vals)) if vals else None
 
 
+def _latest_run(pairs: Sequence[PairResult], method: str) -> list[PairResult]:
+    """The results of ``method`` from the last run (see ``--merge``) that includes it."""
+    runs = [getattr(p, "run", 0) for p in pairs if p.method == method]
+    last = max(runs) if runs else 0
+    return [p for p in pairs if p.method == method and getattr(p, "run", 0) == last]
+
+
 def summarize(ev: Evaluation, groups: dict[str, list[str]]) -> list[dict]:
-    """Median rows per (method, group of datasets) with ratios to :data:`REFERENCE` in the same group."""
+    """Median rows per (method, group of datasets) with ratios to :data:`REFERENCE` in the same group.
+
+    The time ratio is the median over pairs of ``seconds / seconds of opencv-sgbm on the same pair in the same
+    run`` (same process, same moment's machine load); the bad-2 ratio compares the two medians.
+    """
     methods = list(dict.fromkeys(p.method for p in ev.pairs))
     rows = []
     for group, datasets in groups.items():
-        ref = [p for p in ev.pairs if p.method == REFERENCE and p.dataset in datasets]
-        ref_s, ref_b2 = median_of(ref, "seconds"), median_of(ref, "bad2")
         for m in methods:
-            sel = [p for p in ev.pairs if p.method == m and p.dataset in datasets]
+            sel = [p for p in _latest_run(ev.pairs, m) if p.dataset in datasets]
             if not sel:
                 continue
+            run = getattr(sel[0], "run", 0)
+            ref = {(p.dataset, p.pair): p for p in ev.pairs if p.method == REFERENCE and p.dataset in datasets
+                   and getattr(p, "run", 0) == run and p.metrics is not None}
+            ref_b2 = median_of(list(ref.values()), "bad2")
+            ratios = [p.seconds / ref[(p.dataset, p.pair)].seconds for p in sel
+                      if p.metrics is not None and (p.dataset, p.pair) in ref and ref[(p.dataset, p.pair)].seconds > 0]
             row = {"method": m, "group": group, "pairs": sum(p.metrics is not None for p in sel),
                    "failed": sum(p.error is not None for p in sel), "skipped": sum(p.skipped for p in sel)}
             for k in ("epe", "bad1", "bad2", "bad4", "d1", "see", "epe_noc", "bad2_noc", "seconds", "peak_mib"):
                 row[k] = median_of(sel, k)
             row["bad2_raw"] = median_of(sel, "bad2", raw=True)
             row["density_raw"] = median_of(sel, "density", raw=True)
-            row["time_ratio"] = row["seconds"] / ref_s if row["seconds"] and ref_s else None
+            row["time_ratio"] = float(np.median(ratios)) if ratios else None
             row["bad2_ratio"] = row["bad2"] / ref_b2 if row["bad2"] is not None and ref_b2 else None
             rows.append(row)
     return rows
@@ -180,6 +197,19 @@ def _environment() -> str:
             f"Python {platform.python_version()}, torch {torch.__version__}, OpenCV {cv2.__version__}")
 
 
+def save_pairs(path: Path, pairs: Sequence[PairResult]) -> None:
+    """Per-pair results as JSON (what ``--merge`` reads back)."""
+    from stereonet.io.atomic import atomic_write_text
+
+    atomic_write_text(path, json.dumps([dataclasses.asdict(p) for p in pairs], indent=1, allow_nan=True) + "\n")
+
+
+def load_pairs(path: Path) -> list[PairResult]:
+    if not path.is_file():
+        raise FileNotFoundError(f"--merge: no earlier per-pair results at {path}")
+    return [PairResult(**d) for d in json.loads(path.read_text())]
+
+
 def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: Path, plots_tmp: Path,
                  synthetic_spec: str, seconds_total: float, skipped: Sequence[str] = (),
                  load: tuple[float, float] | None = None, caps: str = "") -> None:
@@ -220,18 +250,21 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
     parts += ["## Per dataset", "", f"![bad-2 per method and dataset]({rel}/bad2_per_dataset.png)", ""]
     for d in (d for ds in groups.values() for d in ds):
         parts += [f"### {d}", "", markdown_table(per_dataset, d), ""]
-    shown = []
+    run = max((p.run for p in ev.pairs), default=0)
+    if run == 0:  # a fresh benchmark: the pictures of earlier runs go
+        for old in docs.glob("panel_*.jpg"):
+            old.unlink()
     for d in (d for ds in groups.values() for d in ds if d in PANEL_DATASETS or d.startswith("synthetic")):
         folder = plots_tmp / safe_name(d)
         for src in sorted(folder.glob("*.png"))[:1] if folder.is_dir() else []:
-            dst = docs / f"panel_{folder.name}_{src.stem}.jpg"
-            if shrink_copy(src, dst):
-                shown.append((d, src.stem, dst))
+            shrink_copy(src, docs / f"panel_{folder.name}_{src.stem}{f'_run{run}' if run else ''}.jpg")
+    shown = sorted(docs.glob("panel_*.jpg"))
     if shown:
         parts += ["## What the maps look like", "",
-                  "Left image, ground truth, then each method's disparity and error map (same colour scale).", ""]
-        for d, name, dst in shown:
-            parts += [f"**{d} / {name}**", "", f"![{d} {name}]({rel}/{dst.name})", ""]
+                  "Left image, ground truth, then each method's disparity and error map (same colour scale); "
+                  "`_runN` pictures show the methods added by a later `--merge` run.", ""]
+        for dst in shown:
+            parts += [f"**{dst.stem.removeprefix('panel_')}**", "", f"![{dst.stem}]({rel}/{dst.name})", ""]
     failures = [p for p in ev.pairs if p.error]
     if failures:
         parts += ["## Failures", ""]
@@ -261,6 +294,9 @@ def build_parser() -> OneLineParser:
                    help="skip a pair when a method's projected time for it (from its speed so far) exceeds this")
     p.add_argument("--out", type=Path, default=REPO / "BENCHMARKS.md")
     p.add_argument("--docs", type=Path, default=REPO / "docs" / "bench")
+    p.add_argument("--merge", action="store_true",
+                   help="add these methods to the last benchmark (docs/bench/pairs.json) instead of starting over; "
+                        f"{REFERENCE} is re-run for the ratios")
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -288,10 +324,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             groups["real"] = [dataset_label(s) for s in real]
         if synthetic:
             groups["synthetic"] = [dataset_label(synthetic)]
+        pairs_json = args.docs.resolve() / "pairs.json"
+        earlier = load_pairs(pairs_json) if args.merge else []
+        if args.merge and REFERENCE not in methods:
+            methods.append(REFERENCE)
         t0, load0 = time.perf_counter(), _load_average()
         with tempfile.TemporaryDirectory(prefix="stereonet-bench-") as tmp:
             ev = run_evaluation(methods, specs, fill=True, plots=Path(tmp), progress=not args.no_progress,
                                 budget=args.budget, pair_cap=args.pair_cap)
+            if earlier:
+                run = max(p.run for p in earlier) + 1
+                for p in ev.pairs:
+                    p.run = run
+                ev = Evaluation(earlier + ev.pairs)
+                skipped = [n for n in skipped if n not in {p.method for p in ev.pairs}]
+            save_pairs(pairs_json, ev.pairs)
             load = None if load0 is None else (load0, _load_average() or load0)
             write_report(ev, groups, args.out.resolve(), args.docs.resolve(), Path(tmp), synthetic or "none",
                          time.perf_counter() - t0, skipped, load,

@@ -155,6 +155,7 @@ class PairResult:
     peak_mib: float
     error: str | None = None
     skipped: bool = False
+    run: int = 0  # which benchmark run measured it (stereonet.bench --merge keeps several)
 
 
 @dataclass

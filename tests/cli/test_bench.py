@@ -44,3 +44,19 @@ def test_bench_bad_method_is_one_line(capsys):
     assert bench.main(["--methods", "nonsense", "--no-real", "--synthetic", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "valid names" in err[0]
+
+
+def test_bench_merge_adds_methods(tmp_path, monkeypatch):
+    tiny = _tiny_dataset()
+    real_run = bench.run_evaluation
+    monkeypatch.setattr(bench, "run_evaluation", lambda *a, **k: real_run(*a, **{**k, "load": tiny}))
+    out, docs = tmp_path / "B.md", tmp_path / "bench"
+    common = ["--synthetic", "2", "--no-real", "--out", str(out), "--docs", str(docs), "--no-progress"]
+    assert bench.main(["--methods", "opencv-sgbm", *common]) == 0
+    assert "`opencv-bm`" not in out.read_text()
+    assert bench.main(["--methods", "opencv-bm", "--merge", *common]) == 0
+    text = out.read_text()
+    assert "| `opencv-bm` |" in text and "| `opencv-sgbm` |" in text
+    runs = {p.run for p in bench.load_pairs(docs / "pairs.json")}
+    assert runs == {0, 1}
+    assert len(list(docs.glob("panel_*_run1.jpg"))) == 1 and len(list(docs.glob("panel_*.jpg"))) == 2
