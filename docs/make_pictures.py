@@ -64,8 +64,9 @@ def render_cloud(ply: Path, png: Path, max_points: int = 60000) -> None:
     rng = np.random.default_rng(0)
     keep = rng.permutation(len(points))[:max_points]
     p, c = points[keep], (colors[keep] / 255.0 if colors is not None else None)
-    near = p[:, 2] < np.percentile(p[:, 2], 98)  # drop the far tail for a readable scale
-    p, c = p[near], (c[near] if c is not None else None)
+    lo, hi = np.percentile(p, [2, 95], axis=0)  # drop stray far/side points (borders, mismatches) for the scale
+    inside = np.all((p >= lo) & (p <= hi), axis=1)
+    p, c = p[inside], (c[inside] if c is not None else None)
     fig = Figure(figsize=(8, 6))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1, projection="3d")
