@@ -16,10 +16,12 @@ def select_hwd(vol, method, ratio, lr_tol):
 
     Returns: disp (H, W) float32 (refined), min_cost (H, W) float32, unique (H, W) bool,
     disp_right (H, W) float32 (integer-valued right-reference WTA, ties to the smallest disparity),
-    lr_ok (H, W) bool (:func:`stereonet.optimize.lr_check.left_right_check` of disp and disp_right).
+    lr_ok (H, W) bool (:func:`stereonet.optimize.lr_check.left_right_check` of the integer WTA disparity
+    and disp_right, i.e. before sub-pixel refinement).
     """
     H, W, D = vol.shape
     disp = np.empty((H, W), np.float32)
+    disp_int = np.empty((H, W), np.float32)
     min_cost = np.empty((H, W), np.float32)
     unique = np.ones((H, W), np.bool_)
     disp_right = np.zeros((H, W), np.float32)
@@ -61,13 +63,14 @@ def select_hwd(vol, method, ratio, lr_tol):
                     off = (cm - cp) / den
                     off = min(max(off, np.float32(-0.5)), np.float32(0.5))
             disp[y, x] = np.float32(bi) + off
+            disp_int[y, x] = bi
         if lr_tol >= 0:
             for x in range(W):
-                xr = np.rint(np.float32(x) - disp[y, x])  # round half to even, as torch.round
-                if xr < 0 or xr > W - 1:
+                xr = x - int(disp_int[y, x])
+                if xr < 0:
                     lr_ok[y, x] = False
                 else:
-                    lr_ok[y, x] = abs(disp[y, x] - disp_right[y, int(xr)]) <= lr_tol
+                    lr_ok[y, x] = abs(disp_int[y, x] - disp_right[y, xr]) <= lr_tol
     return disp, min_cost, unique, disp_right, lr_ok
 
 

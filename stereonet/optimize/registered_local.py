@@ -2,7 +2,7 @@
 
 Pipeline of every ``bm-*`` method (textbook block matching):
 cost volume (window mean of the cost) -> WTA -> sub-pixel (parabola) -> uniqueness ratio -> left-right
-check against the right-reference WTA of the same volume (``|dL - dR| <= lr_tol``); invalid pixels are
+check of the integer WTA against the right-reference WTA of the same volume (``|dL - dR| <= lr_tol``); invalid pixels are
 left invalid (``fill=False``; eval.py has ``--fill``). ``sgm`` adds semi-global aggregation of a census
 (or AD-census) cost before the selection, and a median + speckle filter after it.
 
@@ -10,8 +10,10 @@ left invalid (``fill=False``; eval.py has ``--fill``). ``sgm`` adds semi-global 
 with ``scripts/bench_classical.py``. Candidates tried (bad-2 %, all pixels, filled; tsukuba / venus / cones /
 teddy / kitti2012 / kitti2015): census 5x5, P1=1, P2=8 constant: 4.78 / 1.18 / 7.26 / 8.00 / 10.60 / 15.22
 (loses KITTI 2012 to SGBM's 8.04); AD-census was worse on KITTI (14-19 %); census 7x7 with P1=2, P2=48 and
-the edge-adapted P2 (alpha 20): 3.93 / 1.06 / 7.51 / 7.49 / 7.71 / 13.31, below SGBM (4.76 / 2.20 / 11.91 /
-18.92 / 8.04 / 21.73) on every pair; 16 paths gave no consistent gain for twice the time.
+the edge-adapted P2 (alpha 20): 3.93 / 1.06 / 7.51 / 7.49 / 7.71 / 13.31 with the LR check on sub-pixel
+disparities, 3.74 / 1.65 / 7.42 / 7.40 / 7.59 / 14.26 with it on the integer WTA (the default: denser, 86 %
+instead of 83 % on Cones), both below SGBM (4.76 / 2.20 / 11.91 / 18.92 / 8.04 / 21.73) on every pair;
+16 paths gave no consistent gain for twice the time.
 """
 
 from __future__ import annotations

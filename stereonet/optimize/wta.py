@@ -58,7 +58,8 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
         cost: :math:`(B, D, H, W)` left-reference costs.
         subpixel: ``"parabola"``, ``"equiangular"`` or None.
         uniqueness: ratio for :func:`uniqueness_mask` (0 keeps every non-tied pixel).
-        lr_tol: LR-check tolerance in pixels, None = no check (``lr_ok`` all True).
+        lr_tol: LR-check tolerance in pixels on the integer WTA disparities (before sub-pixel refinement,
+            so a refined 30.6 is not failed against a right WTA of 30), None = no check (``lr_ok`` all True).
         backend: ``"auto"``, ``"torch"`` or ``"numba"``.
 
     Returns:
@@ -82,12 +83,11 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
                                        and cost.dtype == torch.float32
                                        and not (torch.is_grad_enabled() and cost.requires_grad))
     if not use_numba:
-        disp, min_cost = wta(cost)
-        unique = uniqueness_mask(cost, disp, uniqueness)
-        if subpixel is not None:
-            disp = subpixel_refine(cost, disp, subpixel)
+        disp_int, min_cost = wta(cost)
+        unique = uniqueness_mask(cost, disp_int, uniqueness)
+        disp = subpixel_refine(cost, disp_int, subpixel) if subpixel is not None else disp_int
         disp_right = wta_right(cost)
-        lr_ok = left_right_check(disp, disp_right, lr_tol) if lr_tol is not None else torch.ones_like(unique)
+        lr_ok = left_right_check(disp_int, disp_right, lr_tol) if lr_tol is not None else torch.ones_like(unique)
         return disp, min_cost, unique, disp_right, lr_ok
     from stereonet.optimize._select_numba import select_hwd
 
