@@ -8,6 +8,7 @@ shifts are safe), and the Hamming distance is a branch-free SWAR popcount of ``c
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -26,6 +27,15 @@ def to_grey(img: torch.Tensor) -> torch.Tensor:
         return img
     w = img.new_tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)
     return (img * w).sum(1, keepdim=True)
+
+
+def grey_numpy(img: torch.Tensor) -> np.ndarray:
+    """:func:`to_grey` of one image ``(C, H, W)`` as a float32 ``(H, W)`` numpy array, computed in numpy
+    with the same float32 operations (bit-identical to the torch result; no torch threading)."""
+    a = img.detach().to("cpu", torch.float32).numpy()
+    if a.shape[0] == 1:
+        return np.ascontiguousarray(a[0])
+    return (a[0] * np.float32(0.299) + a[1] * np.float32(0.587)) + a[2] * np.float32(0.114)
 
 
 def census_transform(img: torch.Tensor, window: int = 5) -> torch.Tensor:

@@ -51,7 +51,7 @@ import torch
 
 from stereonet.checks import StereoInputError, check_image, check_max_disp, check_stereo_inputs, check_window
 from stereonet.cost.box import box_mean, min_filter
-from stereonet.cost.census import BITS_PER_WORD, census_transform, popcount, to_grey
+from stereonet.cost.census import BITS_PER_WORD, census_transform, grey_numpy, popcount, to_grey
 
 DEFAULT_MEMORY_BUDGET = 512 * 2**20
 NCC_MIN_VARIANCE = 1e-6
@@ -168,10 +168,6 @@ def _hwc(img: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(img.detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
 
 
-def _hw(img: torch.Tensor) -> np.ndarray:
-    return np.ascontiguousarray(img.detach().to("cpu", torch.float32)[0].numpy())
-
-
 def _box_np(img: np.ndarray, window: int) -> np.ndarray:
     """box_mean of an (H, W[, C]) float32 array with the numba kernel (a copy)."""
     from stereonet.cost._cost_numba import box_mean_hwd
@@ -209,14 +205,14 @@ def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, co
             vol = K.pixel_diff(li / (_box_np(li, window) + np.float32(LSSAD_EPS)),
                                ri / (_box_np(ri, window) + np.float32(LSSAD_EPS)), n_disp, False)
         elif cost == "ncc":
-            gl, gr = _hw(to_grey(lb)[0]), _hw(to_grey(rb)[0])
+            gl, gr = grey_numpy(lb[0]), grey_numpy(rb[0])
             vol = K.pixel_product(gl, gr, n_disp)
         elif cost in ("census", "census_ad"):
             check_window(census_window, "census_window")
             if census_window < 3:
                 raise StereoInputError(f"census_window: expected an odd integer >= 3, got {census_window}")
-            cl = K.census_hwk(_hw(to_grey(lb)[0]), census_window, BITS_PER_WORD)
-            cr = K.census_hwk(_hw(to_grey(rb)[0]), census_window, BITS_PER_WORD)
+            cl = K.census_hwk(grey_numpy(lb[0]), census_window, BITS_PER_WORD)
+            cr = K.census_hwk(grey_numpy(rb[0]), census_window, BITS_PER_WORD)
             if cost == "census":
                 vol = K.pixel_hamming(cl, cr, n_disp)
             else:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from stereonet.checks import StereoInputError, check_cost_volume, check_image, check_shape
-from stereonet.cost.census import to_grey
+from stereonet.cost.census import grey_numpy, to_grey
 
 DIRECTIONS_8 = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, 1), (1, -1), (-1, -1))
 DIRECTIONS_16 = DIRECTIONS_8 + ((2, 1), (-2, 1), (2, -1), (-2, -1), (1, 2), (-1, 2), (1, -2), (-1, -2))
@@ -177,7 +177,7 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
     from stereonet.optimize._sgm_numba import sgm_numba_hwd
 
     b, n, h, w = cost.shape
-    grey = None if image is None else to_grey(image.detach()).to("cpu", torch.float32)[:, 0].numpy()  # BxHxW
+    grey = None if image is None else [grey_numpy(image[i]) for i in range(b)]  # B x (H, W)
     dirs = np.asarray(directions, dtype=np.int64)
     outs = []
     for i in range(b):

@@ -96,6 +96,7 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
         vol = cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
         tol = -1.0 if lr_tol is None else float(lr_tol)
         outs.append([torch.from_numpy(a) for a in select_hwd(vol, methods[subpixel], float(uniqueness), tol)])
-    disp, min_cost, unique, disp_right, lr_ok = (torch.stack([o[i] for o in outs])[:, None].to(cost.device)
-                                                 for i in range(5))
+    disp, min_cost, unique, disp_right, lr_ok = (
+        (torch.stack([o[i] for o in outs]) if len(outs) > 1 else outs[0][i][None])[:, None].to(cost.device)
+        for i in range(5))
     return disp.to(cost.dtype), min_cost.to(cost.dtype), unique, disp_right.to(cost.dtype), lr_ok
