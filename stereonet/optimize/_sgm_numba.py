@@ -114,11 +114,11 @@ def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np
     groups = [(np.ascontiguousarray(p2[g]), np.ascontiguousarray(dirs[g]), flag)
               for g, flag in ((down, True), (up, False)) if g.size]
     if len(groups) == 1 or numba.get_num_threads() == 1 or cost_hwd.nbytes > CONCURRENT_MAX_BYTES:
-        total = np.zeros_like(cost_hwd)  # one buffer, the sweeps one after the other
+        total = np.zeros(cost_hwd.shape, np.float32)  # one buffer, the sweeps one after the other
         for p2g, dg, flag in groups:
             _sweep(cost_hwd, total, P1, p2g, dg, flag)
         return total
-    buffers = [np.zeros_like(cost_hwd) for _ in groups]
+    buffers = [np.zeros(cost_hwd.shape, np.float32) for _ in groups]  # calloc: zero pages on first touch
     with ThreadPoolExecutor(max_workers=len(groups)) as pool:
         list(pool.map(lambda job: _sweep(cost_hwd, job[0], P1, *job[1]), zip(buffers, groups)))
     total = buffers[0]

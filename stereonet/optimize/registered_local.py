@@ -124,6 +124,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     if cost_name not in ("census", "census_ad"):
         cost_opts.pop("census_window", None)
     vol = build_cost_volume(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
-    agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha)
+    # left was validated by build_cost_volume just above
+    agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, _guide_checked=True)
     del vol
     return select_and_filter(agg, **back)

@@ -123,7 +123,7 @@ def _path_torch(cost: torch.Tensor, dx: int, dy: int, P1: float, p2: torch.Tenso
     return torch.stack([rows[y] for y in range(h)], dim=2)
 
 
-def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha):
+def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide: bool = True):
     check_cost_volume(cost)
     directions = sgm_directions(paths)
     if not (P1 >= 0 and P2 >= P1):
@@ -131,7 +131,8 @@ def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha):
     if p2_alpha < 0:
         raise StereoInputError(f"p2_alpha: expected >= 0, got {p2_alpha}")
     if image is not None:
-        check_image(image, "image")
+        if check_guide:
+            check_image(image, "image")
         b, _, h, w = cost.shape
         check_shape(image, [str(b), "C", str(h), str(w)], "image")
     return directions
@@ -151,7 +152,7 @@ def sgm_aggregate_torch(cost: torch.Tensor, P1: float, P2: float, paths: int = 8
 
 
 def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, image: torch.Tensor | None = None,
-                  p2_alpha: float = 0.0, backend: str = "auto") -> torch.Tensor:
+                  p2_alpha: float = 0.0, backend: str = "auto", *, _guide_checked: bool = False) -> torch.Tensor:
     """Semi-global aggregation of any cost volume (see module doc).
 
     Args:
@@ -162,6 +163,7 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
         image: optional guide :math:`(B, C, H, W)` in [0, 1] (the left image).
         p2_alpha: strength of the P2 adaptation (0 = constant P2).
         backend: ``"auto"`` (numba on CPU without gradient, else torch), ``"torch"`` or ``"numba"``.
+        _guide_checked: internal; the caller has already validated ``image`` with ``check_image``.
 
     Returns:
         :math:`(B, D, H, W)` aggregated cost ``S = sum_r L_r`` (dtype of ``cost``; the numba backend
@@ -169,7 +171,7 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
     """
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
-    directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha)
+    directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide=not _guide_checked)
     use_numba = backend == "numba" or (
         backend == "auto" and cost.device.type == "cpu" and not (torch.is_grad_enabled() and cost.requires_grad))
     if not use_numba:
