@@ -207,6 +207,11 @@ def write_report(out: Path, args, ap, coded, laser, align, no_overlap, seconds) 
         lines.append(f"| {r['init']} | {r['seed']} | {r['method']} | {_f(r['init_rot'])} | {_f(r['init_trans'], 1000)} | "
                      f"{_f(r['max_rot_err_deg'], 1, 3)} | {_f(r['max_trans_err'], 1000, 2)} | {_f(r['mean_rmse'], 1000, 2)} | "
                      f"{_f(r['iterations'])} | {_f(r['seconds'])} |")
+    failed = [r for r in align if "error" not in r and r["max_trans_err"] > r["init_trans"]]
+    if failed:
+        lines += ["", "Worse than the guess (ICP slid away; point-to-point matches slide along the flat walls and "
+                  "floor, point-to-plane residuals do not reward that): "
+                  + ", ".join(f"{r['init']} seed {r['seed']} {r['method']}" for r in failed) + "."]
     lines += ["", f"No overlap (two scans looking 60° apart from one spot): `{no_overlap}`", "",
               "![scan views](scan_views.png)", ""]
     atomic_write_text(out / "README.md", "\n".join(lines))
