@@ -209,8 +209,8 @@ def write_report(out: Path, args, ap, coded, laser, align, no_overlap, seconds) 
                      f"{_f(r['iterations'])} | {_f(r['seconds'])} |")
     failed = [r for r in align if "error" not in r and r["max_trans_err"] > r["init_trans"]]
     if failed:
-        lines += ["", "Worse than the guess (ICP slid away; point-to-point matches slide along the flat walls and "
-                  "floor, point-to-plane residuals do not reward that): "
+        lines += ["", "Worse than the guess (ICP drifted away, most likely sliding along the flat walls and floor, "
+                  "which point-to-point matching does not resist): "
                   + ", ".join(f"{r['init']} seed {r['seed']} {r['method']}" for r in failed) + "."]
     lines += ["", f"No overlap (two scans looking 60° apart from one spot): `{no_overlap}`", "",
               "![scan views](scan_views.png)", ""]
