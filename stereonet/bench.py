@@ -79,7 +79,6 @@ def summarize(ev: Evaluation, groups: dict[str, list[str]]) -> list[dict]:
             run = getattr(sel[0], "run", 0)
             ref = {(p.dataset, p.pair): p for p in ev.pairs if p.method == REFERENCE and p.dataset in datasets
                    and getattr(p, "run", 0) == run and p.metrics is not None}
-            ref_b2 = median_of(list(ref.values()), "bad2")
             ratios = [p.seconds / ref[(p.dataset, p.pair)].seconds for p in sel
                       if p.metrics is not None and (p.dataset, p.pair) in ref and ref[(p.dataset, p.pair)].seconds > 0]
             row = {"method": m, "group": group, "pairs": sum(p.metrics is not None for p in sel),
@@ -89,7 +88,10 @@ def summarize(ev: Evaluation, groups: dict[str, list[str]]) -> list[dict]:
             row["bad2_raw"] = median_of(sel, "bad2", raw=True)
             row["density_raw"] = median_of(sel, "density", raw=True)
             row["time_ratio"] = float(np.median(ratios)) if ratios else None
+            same = [ref[(p.dataset, p.pair)] for p in sel if p.metrics is not None and (p.dataset, p.pair) in ref]
+            ref_b2 = median_of(same, "bad2")  # the reference on the same pairs this method ran on
             row["bad2_ratio"] = row["bad2"] / ref_b2 if row["bad2"] is not None and ref_b2 else None
+            row["complete"] = row["pairs"] == len(sel) and len(sel) > 0
             rows.append(row)
     return rows
 
@@ -102,8 +104,8 @@ def markdown_table(rows: Sequence[dict], group: str) -> str:
     head = ("| method | pairs | EPE | bad-1 | bad-2 | bad-4 | D1 | SEE | bad-2 noc | bad-2 raw | density raw | "
             "s/pair | × sgbm time | ÷ sgbm bad-2 | peak MiB |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    sel = sorted((r for r in rows if r["group"] == group),
-                 key=lambda r: (r["bad2"] is None, r["bad2"] if r["bad2"] is not None else 0))
+    sel = sorted((r for r in rows if r["group"] == group),  # methods that ran on every pair first
+                 key=lambda r: (not r["complete"], r["bad2"] is None, r["bad2"] if r["bad2"] is not None else 0))
     for r in sel:
         note = "".join([f" ({r['failed']} failed)" if r["failed"] else "",
                         f" ({r['skipped']} skipped: time cap)" if r["skipped"] else ""])
@@ -122,10 +124,12 @@ def headline(rows: Sequence[dict], groups: Sequence[str]) -> list[str]:
     from stereonet import matchers
 
     lines = ["## Headline: best of each kind (median bad-2 after fill, lower is better)", "",
+             "Only methods that ran on every pair of the group compete here (a method that skipped the large "
+             "pairs would be judged on the easy ones).", "",
              "| data | kind | method | bad-2 | EPE | SEE | s/pair | ÷ sgbm bad-2 | × sgbm time |",
              "|---|---|---|---|---|---|---|---|---|"]
     for group in groups:
-        sel = [r for r in rows if r["group"] == group and r["bad2"] is not None]
+        sel = [r for r in rows if r["group"] == group and r["bad2"] is not None and r["complete"]]
         for kind in dict.fromkeys(matchers.spec(r["method"]).kind for r in sel):
             best = min((r for r in sel if matchers.spec(r["method"]).kind == kind), key=lambda r: r["bad2"])
             lines.append(f"| {group} | {kind} | `{best['method']}` | {_fmt(best['bad2'], '.1f')} | "
@@ -237,7 +241,8 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
         "as errors), EPE and SEE (SMD-Nets soft edge error on depth discontinuities) are in pixels; `noc` = "
         "non-occluded pixels (datasets with an occlusion mask). `× sgbm time` and `÷ sgbm bad-2` are ratios to "
         f"`{REFERENCE}` medians on the same pairs; peak MiB is the extra resident memory of one call (see "
-        f"`stereonet/cli/common.py`). Rows are sorted by bad-2. {caps}",
+        f"`stereonet/cli/common.py`). Rows are sorted by bad-2, methods that ran on every pair first; the bad-2 "
+        f"ratio of a method that skipped pairs compares it with opencv-sgbm on the pairs it ran. {caps}",
         "",
     ]
     parts += headline(rows, list(groups))
@@ -297,6 +302,8 @@ def build_parser() -> OneLineParser:
     p.add_argument("--merge", action="store_true",
                    help="add these methods to the last benchmark (docs/bench/pairs.json) instead of starting over; "
                         f"{REFERENCE} is re-run for the ratios")
+    p.add_argument("--report-only", action="store_true",
+                   help="rewrite BENCHMARKS.md from docs/bench/pairs.json without running anything")
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -324,7 +331,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             groups["real"] = [dataset_label(s) for s in real]
         if synthetic:
             groups["synthetic"] = [dataset_label(synthetic)]
-        pairs_json = args.docs.resolve() / "pairs.json"
+        pairs_json, run_json = args.docs.resolve() / "pairs.json", args.docs.resolve() / "run.json"
+        if args.report_only:  # rewrite BENCHMARKS.md from the saved results (e.g. after a change to the report)
+            meta = json.loads(run_json.read_text()) if run_json.is_file() else {}
+            ev = Evaluation(load_pairs(pairs_json))
+            with tempfile.TemporaryDirectory() as tmp:
+                write_report(ev, groups, args.out.resolve(), args.docs.resolve(), Path(tmp),
+                             meta.get("synthetic", synthetic or "none"), meta.get("seconds", 0.0),
+                             meta.get("skipped", skipped), meta.get("load"), meta.get("caps", ""))
+            print(f"rewrote {args.out} from {pairs_json}")
+            return 0
         earlier = load_pairs(pairs_json) if args.merge else []
         if args.merge and REFERENCE not in methods:
             methods.append(REFERENCE)
@@ -340,11 +356,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                 skipped = [n for n in skipped if n not in {p.method for p in ev.pairs}]
             save_pairs(pairs_json, ev.pairs)
             load = None if load0 is None else (load0, _load_average() or load0)
-            write_report(ev, groups, args.out.resolve(), args.docs.resolve(), Path(tmp), synthetic or "none",
-                         time.perf_counter() - t0, skipped, load,
-                         f"Time caps: a method's remaining pairs on a dataset are skipped after {args.budget:g} s "
-                         f"there, and a pair is skipped when its projected time exceeds {args.pair_cap:g} s; "
-                         "skipped pairs are counted in the method column.")
+            caps = (f"Time caps: a method's remaining pairs on a dataset are skipped after {args.budget:g} s there, "
+                    f"and a pair is skipped when its projected time exceeds {args.pair_cap:g} s; skipped pairs are "
+                    "counted in the method column.")
+            meta = {"synthetic": synthetic or "none", "seconds": time.perf_counter() - t0, "skipped": skipped,
+                    "load": load, "caps": caps}
+            if earlier and run_json.is_file():
+                meta["seconds"] += json.loads(run_json.read_text()).get("seconds", 0.0)
+            from stereonet.io.atomic import atomic_write_text
+
+            atomic_write_text(run_json, json.dumps(meta, indent=1) + "\n")
+            write_report(ev, groups, args.out.resolve(), args.docs.resolve(), Path(tmp), meta["synthetic"],
+                         meta["seconds"], skipped, load, caps)
     except USER_ERRORS as e:
         return fail(PROG, e)
     except ImportError as e:
