@@ -60,3 +60,6 @@ def test_bench_merge_adds_methods(tmp_path, monkeypatch):
     runs = {p.run for p in bench.load_pairs(docs / "pairs.json")}
     assert runs == {0, 1}
     assert len(list(docs.glob("panel_*_run1.jpg"))) == 1 and len(list(docs.glob("panel_*.jpg"))) == 2
+    out.unlink()
+    assert bench.main(["--report-only", *common]) == 0  # rewritten from pairs.json, nothing re-run
+    assert "| `opencv-bm` |" in out.read_text()
