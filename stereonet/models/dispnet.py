@@ -40,11 +40,14 @@ class DispNetOutput:
             values in pixels of the full resolution.
         features: decoder features ``{1: (B, C0, H, W), 2: (B, C1, H/2, W/2), 4: (B, C2, H/4, W/4)}`` keyed by
             stride (used by the SMD head).
+        matched: the soft-argmin of the correlation at 1/4, :math:`(B, 1, H/4, W/4)` in input pixels (the
+            start of the 1/4 prediction; trained with its own loss so the features learn to match).
     """
 
     disparity: torch.Tensor
     pyramid: list[torch.Tensor]
     features: dict[int, torch.Tensor]
+    matched: torch.Tensor
 
 
 def _up2(x: torch.Tensor) -> torch.Tensor:
@@ -125,7 +128,8 @@ class DispNet(nn.Module):
         d1 = _up2(d2) + self.pred1(x1) * self.disp_unit
         x0 = self.dec0(torch.cat([self.up0(x1), x_left, _up2(d1)], dim=1))
         d0 = _up2(d1) + self.pred0(x0) * self.disp_unit
-        return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2})
+        return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2},
+                             matched=d_match)
 
 
 def run_padded(net: nn.Module, left: torch.Tensor, right: torch.Tensor):

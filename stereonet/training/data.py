@@ -111,7 +111,10 @@ def swap_flip(item: dict) -> dict:
     out = dict(item)
     out["left"], out["right"] = flip(item["right"]), flip(item["left"])
     out["disparity"], out["disparity_right"] = flip(item["disparity_right"]), flip(item["disparity"])
-    out["valid"], out["valid_right"] = flip(item["valid_right"]), flip(item["valid"])
+    valid_right = item["valid_right"]
+    if "max_disp" in item:  # data_gen's right-view GT can exceed the range on objects seen only from the right
+        valid_right = valid_right & (item["disparity_right"] <= item["max_disp"])
+    out["valid"], out["valid_right"] = flip(valid_right), flip(item["valid"])
     out.pop("occlusion", None)  # right-view occlusion is not rendered; the loss uses ``valid`` only
     return out
 

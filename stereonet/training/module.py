@@ -146,13 +146,16 @@ class DispNetModule(StereoModule):
     Args:
         max_disp, channels: the network's (see DispNet).
         scale_weight_width: std (in scale steps) of the moving loss-weight bump.
+        match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
+            makes the shared features learn to match instead of the decoder learning a prior.
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
     """
 
     model_name = "dispnet"
 
     def __init__(self, max_disp: int = 96, channels: int = 16, scale_weight_width: float = 1.0,
-                 lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+                 match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4,
+                 schedule_steps: int = 5000) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         self.model = DispNet(max_disp=max_disp, channels=channels)
@@ -167,7 +170,9 @@ class DispNetModule(StereoModule):
         out = self.model(batch["left"], batch["right"])
         weights = coarse_to_fine_weights(self.progress, len(out.pyramid), self.hparams.scale_weight_width)
         loss, per_scale = multiscale_l1_loss(out.pyramid, batch["disparity"], batch["valid"], weights)
-        extra = {}
+        match_l1, _ = multiscale_l1_loss([out.matched], batch["disparity"], batch["valid"], [1.0])
+        loss = loss + self.hparams.match_weight * match_l1
+        extra = {"match_epe": disparity_errors(out.matched.detach(), batch["disparity"], batch["valid"])["epe"]}
         for scale, pred in zip(DispNet.scales, out.pyramid):
             errs = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
             extra[f"epe_s{scale}"] = errs["epe"]
@@ -182,13 +187,14 @@ class SMDModule(StereoModule):
         max_disp, channels, hidden: the network's (see SMDNet).
         backbone_weight: weight of the backbone's multi-scale L1 loss.
         init_backbone: optional DispNet weights (slim .pt or .ckpt) to start the backbone from.
+        match_weight: as :class:`DispNetModule`'s, on the backbone.
     """
 
     model_name = "smd"
 
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
-                 lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+                 match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden))
@@ -208,6 +214,8 @@ class SMDModule(StereoModule):
         nll = mixture_nll(out.mixture, batch["disparity"], batch["valid"])
         weights = coarse_to_fine_weights(self.progress, len(out.backbone.pyramid), self.hparams.scale_weight_width)
         l1, _ = multiscale_l1_loss(out.backbone.pyramid, batch["disparity"], batch["valid"], weights)
+        match_l1, _ = multiscale_l1_loss([out.backbone.matched], batch["disparity"], batch["valid"], [1.0])
+        l1 = l1 + self.hparams.match_weight * match_l1
         backbone_err = disparity_errors(out.backbone.disparity.detach(), batch["disparity"], batch["valid"])
         extra = {"nll": nll.detach(), "backbone_epe": backbone_err["epe"],
                  "uncertainty": out.uncertainty.detach().mean()}

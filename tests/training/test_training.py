@@ -95,6 +95,9 @@ def test_swap_flip_gives_a_consistent_pair():
                      "valid_right": v})
     assert torch.equal(out["left"], right.flip(-1)) and torch.equal(out["disparity"], dr.flip(-1))
     assert swap_flip({"left": left})["left"] is left
+    far = swap_flip({"left": left, "right": right, "disparity": d, "disparity_right": dr + 5.0, "valid": v,
+                     "valid_right": v, "max_disp": 5})
+    assert not far["valid"].any()  # right-view GT beyond the range is not supervised
 
 
 def test_gt_nonoccluded_marks_occluded_strip():
