@@ -149,9 +149,11 @@ def plot_speed_accuracy(rows: Sequence[dict], group: str, path: Path) -> None:
 
     sel = [r for r in rows if r["group"] == group and r["seconds"] and r["bad2"] is not None]
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for r in sel:
-        ax.scatter(r["seconds"], r["bad2"], color="tab:red" if r["method"] == REFERENCE else "tab:blue")
-        ax.annotate(r["method"], (r["seconds"], r["bad2"]), fontsize=8, xytext=(3, 3), textcoords="offset points")
+    for r in sel:  # hollow markers: the method skipped pairs (time cap), so its median is over fewer pairs
+        colour = "tab:red" if r["method"] == REFERENCE else "tab:blue"
+        ax.scatter(r["seconds"], r["bad2"], edgecolors=colour, facecolors=colour if r["complete"] else "none")
+        label = r["method"] if r["complete"] else f"{r['method']} ({r['pairs']} pairs only)"
+        ax.annotate(label, (r["seconds"], r["bad2"]), fontsize=8, xytext=(3, 3), textcoords="offset points")
     ax.set_xscale("log")
     ax.set_xlabel("seconds per pair (median, log scale)")
     ax.set_ylabel("bad-2 % after fill (median, lower is better)")
