@@ -9,6 +9,31 @@ import numpy as np
 from numba import prange
 
 
+@numba.njit(fastmath={"nnan", "nsz", "reassoc"}, inline="always")
+def _min_range(c, lo, hi):
+    """min of c[lo:hi] (+inf when empty); vectorised (the volume holds no NaN)."""
+    m = np.float32(3.4e38)
+    for d in range(max(lo, 0), hi):
+        m = min(m, c[d])
+    return m if hi > max(lo, 0) else np.float32(np.inf)
+
+
+@numba.njit(inline="always")
+def _wta_right_row(row, out):
+    """Right-reference WTA of one row (W, D) into out (W,), ties to the smallest disparity."""
+    W, D = row.shape
+    best = np.empty(W, np.float32)
+    for x in range(W):
+        best[x] = row[x, 0]
+        out[x] = 0
+    for x in range(W):
+        for d in range(1, min(D, x + 1)):
+            v = row[x, d]
+            if v < best[x - d]:
+                best[x - d] = v
+                out[x - d] = d
+
+
 @numba.njit(parallel=True, cache=True)
 def select_hwd(vol, method, ratio, lr_tol):
     """Args: vol (H, W, D) float32; method 0 = none, 1 = parabola, 2 = equiangular; ratio in [0, 1);
@@ -28,27 +53,14 @@ def select_hwd(vol, method, ratio, lr_tol):
     lr_ok = np.ones((H, W), np.bool_)
     keep = np.float32(1.0 - ratio)
     for y in prange(H):
-        right_best = np.empty(W, np.float32)
-        for x in range(W):
-            right_best[x] = vol[y, x, 0]  # d = 0
         for x in range(W):
             c = vol[y, x]
-            best = c[0]
+            best = _min_range(c, 0, D)
             bi = 0
-            for d in range(1, D):
-                v = c[d]
-                if v < best:
-                    best = v
-                    bi = d
-                xr = x - d  # the right-reference WTA: x ascending visits d ascending for a fixed xr
-                if xr >= 0 and v < right_best[xr]:
-                    right_best[xr] = v
-                    disp_right[y, xr] = d
+            while c[bi] != best:  # first index of the minimum (ties to the smallest d)
+                bi += 1
             if ratio > 0:
-                second = np.float32(np.inf)
-                for d in range(D):
-                    if abs(d - bi) > 1 and c[d] < second:
-                        second = c[d]
+                second = min(_min_range(c, 0, bi - 1), _min_range(c, bi + 2, D))
                 unique[y, x] = best <= keep * second
             min_cost[y, x] = best
             off = np.float32(0.0)
@@ -64,6 +76,7 @@ def select_hwd(vol, method, ratio, lr_tol):
                     off = min(max(off, np.float32(-0.5)), np.float32(0.5))
             disp[y, x] = np.float32(bi) + off
             disp_int[y, x] = bi
+        _wta_right_row(vol[y], disp_right[y])
         if lr_tol >= 0:
             for x in range(W):
                 xr = x - int(disp_int[y, x])
@@ -80,13 +93,5 @@ def wta_right_hwd(vol):
     H, W, D = vol.shape
     disp_right = np.zeros((H, W), np.float32)
     for y in prange(H):
-        best = np.empty(W, np.float32)
-        for x in range(W):
-            best[x] = vol[y, x, 0]
-        for x in range(W):
-            for d in range(1, min(D, x + 1)):
-                v = vol[y, x, d]
-                if v < best[x - d]:
-                    best[x - d] = v
-                    disp_right[y, x - d] = d
+        _wta_right_row(vol[y], disp_right[y])
     return disp_right
