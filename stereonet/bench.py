@@ -258,7 +258,7 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
     for d in (d for ds in groups.values() for d in ds):
         parts += [f"### {d}", "", markdown_table(per_dataset, d), ""]
     run = max((p.run for p in ev.pairs), default=0)
-    if run == 0:  # a fresh benchmark: the pictures of earlier runs go
+    if run == 0 and any(plots_tmp.iterdir()):  # a fresh benchmark with new pictures: the earlier ones go
         for old in docs.glob("panel_*.jpg"):
             old.unlink()
     for d in (d for ds in groups.values() for d in ds if d in PANEL_DATASETS or d.startswith("synthetic")):
