@@ -44,8 +44,9 @@ from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail, we
 
 PROG = "infer.py"
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
-# Preference order for the default method: learned (when weights exist), then our SGM, then OpenCV's.
-PREFERRED = ("smd", "dispnet", "siamese-sgm", "siamese", "sgm", "opencv-sgbm")
+# Preference order for the default method: learned (when weights exist), then our SGM, then OpenCV's. Among
+# the learned ones, the order of their real-pair bad-2 in BENCHMARKS.md (siamese-sgm is the best of them).
+PREFERRED = ("siamese-sgm", "dispnet", "smd", "siamese", "sgm", "opencv-sgbm")
 MAX_DISP_CAP = 256
 MIN_MATCHES = 8
 MARGIN = 1.2  # automatic max_disp = largest match disparity * MARGIN + 4 px, rounded up to 16
