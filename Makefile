@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python eval.py --methods all --data synthetic:6,real --fill --plots demo_out --json demo_out/results.json
+	$(BIN)/python eval.py --methods all --data synthetic:6,real --fill --budget 60 --plots demo_out --json demo_out/results.json
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
