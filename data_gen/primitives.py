@@ -14,6 +14,7 @@ Geometry parameters are float64 numpy; ray quantities stay in the ray set's dtyp
 
 from __future__ import annotations
 
+import abc
 import math
 
 import numpy as np
@@ -59,7 +60,7 @@ def _miss_to_inf(t: torch.Tensor, hit: torch.Tensor) -> torch.Tensor:
     return torch.where(hit & (t > T_EPS), t, torch.full_like(t, math.inf))
 
 
-class Primitive:
+class Primitive(abc.ABC):
     """Base class: a surface with a :class:`Material`."""
 
     kind = "primitive"
@@ -70,11 +71,13 @@ class Primitive:
     def bounding_sphere(self) -> tuple[np.ndarray, float] | None:
         return None
 
+    @abc.abstractmethod
     def intersect(self, rays) -> torch.Tensor:
-        raise NotImplementedError
+        """Ray parameter of the first hit per ray (``inf`` on a miss)."""
 
+    @abc.abstractmethod
     def surface(self, points: torch.Tensor, dirs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        raise NotImplementedError
+        """(normals, uv) at hit ``points`` seen along ``dirs``."""
 
 
 class Plane(Primitive):

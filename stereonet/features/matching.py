@@ -6,6 +6,7 @@ import numpy as np
 import torch
 
 from stereonet.checks import StereoInputError, check_image, check_image_pair
+from stereonet.cost.census import to_grey
 from stereonet.geometry.camera import DegenerateGeometryError
 
 __all__ = ["image_to_uint8", "match_descriptors", "match_sift"]
@@ -14,11 +15,7 @@ __all__ = ["image_to_uint8", "match_descriptors", "match_sift"]
 def image_to_uint8(image: torch.Tensor) -> np.ndarray:
     """First image of a batch :math:`(B, C, H, W)` in [0, 1] -> grey uint8 :math:`(H, W)` (ITU-R 601 luma)."""
     check_image(image, "image")
-    img = image[0].detach().float().cpu().clamp(0, 1)
-    if img.shape[0] == 3:
-        img = 0.299 * img[0] + 0.587 * img[1] + 0.114 * img[2]
-    else:
-        img = img[0]
+    img = to_grey(image[:1].detach().float().cpu().clamp(0, 1))[0, 0]
     return (img * 255).round().to(torch.uint8).numpy()
 
 

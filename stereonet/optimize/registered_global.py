@@ -78,6 +78,8 @@ def dp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
         mode: ``"occlusion"`` (three-case DP) or ``"energy"`` (Viterbi with ``smoothness``·min(|Δd|, ``truncation``)).
         subpixel: parabola refinement on the data cost.
     """
+    if mode not in ("occlusion", "energy"):
+        raise ValueError(f"mode: expected 'occlusion' or 'energy', got {mode!r}")
     left, right, max_disp = check_stereo_inputs(left, right, max_disp)
     volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
     extras: dict[str, torch.Tensor] = {}
@@ -87,13 +89,11 @@ def dp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
         disp = torch.where(valid, _refine(volume, res.disparity, subpixel), res.disparity)
         extras["occlusion"] = res.occlusion
         extras["energy"] = res.energy
-    elif mode == "energy":
+    else:  # "energy"
         weights, _ = contrast_edge_weights(left)
         res = energy_dp(volume, smoothness, truncation, weights=weights)
         disp, valid, extras["occlusion"] = _occlusion_filled(volume, res.disparity, subpixel)
         extras["energy"] = res.energy
-    else:
-        raise ValueError(f"mode: expected 'occlusion' or 'energy', got {mode!r}")
     return StereoOutput(disp, valid, cost_volume=volume, extras=extras)
 
 
