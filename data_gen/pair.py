@@ -121,6 +121,9 @@ def calibration_of(rig: Rig, max_disp: int):
                        dist1=rig.left.dist, dist2=rig.right.dist, doffs=0.0, ndisp=int(max_disp))
 
 
+DISP_TOLERANCE = 1e-3  # relative slack on max_disp before ground truth is marked invalid
+
+
 def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_right: bool = False
                   ) -> dict[str, torch.Tensor]:
     """Disparities, correspondences, occlusion and specular masks from the centre-ray geometry."""
@@ -134,14 +137,21 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_rig
     corr, z_r = cam_r.project(pts_l)  # HWx2 right pixel of each left pixel's surface point
     disp = xs.reshape(-1) - corr[:, 0]
     visible = visible_from(scene, cam_r, left["points"], projected=(corr.float(), z_r.float())) & hit_l
-    valid = hit_l & (z_r > 0)
+    # representable: in front of both cameras, depth disparity f B / z within the range in both (the scene
+    # sampler guarantees it; this only guards hand-built scenes and float round-off at the bound)
+    limit = scene.max_disp * (1 + DISP_TOLERANCE) if scene.max_disp > 0 else math.inf
+    depth_l = left["depth"].reshape(-1).double()
+    depth_r = right["depth"].reshape(-1).double()
+    valid = hit_l & (z_r > 0) & (cam_l.K[0, 0] * rig.baseline <= limit * depth_l) & (
+        cam_r.K[0, 0] * rig.baseline <= limit * z_r)
     if rig.rectified:
         valid &= disp > 0
     # disparity of the right view, right-referenced: x_left = x_right + d_right
     ids_r = right["ids"].reshape(-1)
     corr_l, z_l = cam_l.project(right["points"].double())
     disp_r = corr_l[:, 0] - xs.reshape(-1)
-    valid_r = (ids_r >= 0) & (z_l > 0)
+    valid_r = (ids_r >= 0) & (z_l > 0) & (cam_r.K[0, 0] * rig.baseline <= limit * depth_r) & (
+        cam_l.K[0, 0] * rig.baseline <= limit * z_l)
     if rig.rectified:
         valid_r &= disp_r > 0
     # specular mask: shiny in the left view, or at the same surface point seen from the right camera

@@ -138,13 +138,68 @@ def sample_rig(rng: np.random.Generator, height: int, width: int, rectified: boo
 def disparity_plane(rig: Rig, alpha: float, beta: float, d_centre: float, roll: float,
                     material: Material) -> Plane:
     """The plane whose left disparity is ``d(x, y) = d_centre + alpha (x - cx) + beta (y - cy)``."""
-    K = rig.left.K
-    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
-    v = np.array([alpha * f, beta * f, d_centre])  # d = v . (xn, yn, 1)
-    n = v / np.linalg.norm(v)
-    k = f * rig.baseline / np.linalg.norm(v)  # plane n . X = k, depth z = f B / d
-    del cx, cy
+    n, k = _disparity_plane_nk(rig, alpha, beta, d_centre)
     return Plane(n * k, n, roll=roll, material=material)
+
+
+def _disparity_plane_nk(rig: Rig, alpha: float, beta: float, d_centre: float) -> tuple[np.ndarray, float]:
+    """Unit normal ``n`` and offset ``k`` (plane ``n . X = k``, k > 0) of a left-camera disparity plane."""
+    f = rig.left.K[0, 0]
+    v = np.array([alpha * f, beta * f, d_centre])  # d = v . (xn, yn, 1)
+    norm = float(np.linalg.norm(v))
+    return v / norm, f * rig.baseline / norm  # plane n . X = k, depth z = f B / d
+
+
+def _boundary_rays(camera: Camera, samples: int = 17) -> np.ndarray:
+    """Undistorted normalized rays ``(xn, yn, 1)`` :math:`(4 samples, 3)` through the image border (pixel edges)."""
+    w, h = camera.size
+    s = np.linspace(0.0, 1.0, samples)
+    x = np.concatenate([-0.5 + w * s, np.full_like(s, w - 0.5), w - 0.5 - w * s, np.full_like(s, -0.5)])
+    y = np.concatenate([np.full_like(s, -0.5), -0.5 + h * s, np.full_like(s, h - 0.5), h - 0.5 - h * s])
+    xn, yn = camera.pixel_to_normalized(x, y)
+    return np.stack([xn, yn, np.ones_like(xn)], axis=-1)
+
+
+def plane_max_disparity(rig: Rig, n: np.ndarray, k: float) -> float:
+    """Largest depth disparity ``f B / z`` of the plane ``n . X = k`` seen by either camera of ``rig``
+    (each camera with its own focal length and depth), or inf when the right camera is not on the left
+    camera's side of the plane (it would see the plane's back, and everything in front of it hidden).
+
+    Inverse depth ``1 / z`` of a plane is affine in undistorted normalized coordinates, so its maximum over an
+    image lies on the image border (sampled densely, through the distortion).
+    """
+    side_left = -k  # n . 0 - k
+    worst = 0.0
+    for cam in (rig.left, rig.right):
+        n_c = cam.R @ n  # plane in the camera frame: n_c . X_c = k_c
+        k_c = k + float(n_c @ cam.t)
+        side = float(n @ cam.center) - k
+        if side * side_left <= 0 or abs(k_c) < 1e-12:
+            return math.inf
+        inv_z = _boundary_rays(cam) @ n_c / k_c
+        worst = max(worst, float(cam.K[0, 0]) * rig.baseline * float(inv_z.max()))
+    return worst
+
+
+def fit_disparity_plane(rig: Rig, alpha: float, beta: float, d_centre: float, limit: float
+                        ) -> tuple[float, float, float]:
+    """Scale a disparity plane ``(alpha, beta, d_centre)`` (moving the 3D plane away, parallel to itself)
+    until both cameras see it with disparity ``f B / z <= limit``; returns the (possibly unchanged) plane.
+
+    The scaled plane ``s v`` is ``n . X = k / s``: its disparity in every camera on the left camera's side
+    grows monotonically with s, so bisection finds the largest admissible scale.
+    """
+    n, k = _disparity_plane_nk(rig, alpha, beta, d_centre)
+    if plane_max_disparity(rig, n, k) <= limit:
+        return alpha, beta, d_centre
+    lo, hi = 0.0, 1.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if mid > 0 and plane_max_disparity(rig, n, k / mid) <= limit:
+            lo = mid
+        else:
+            hi = mid
+    return alpha * lo, beta * lo, d_centre * lo
 
 
 def _choice(rng: np.random.Generator, probs: dict[str, float]) -> str:
@@ -194,6 +249,7 @@ def _sample_background(rng: np.random.Generator, rig: Rig, level: dict,
     if lowest < d_c / 4:
         shrink = (d_c * 0.75) / (d_c - lowest)
         ax, ay = ax * shrink, ay * shrink
+    ax, ay, d_c = fit_disparity_plane(rig, ax, ay, d_c, max_disp)
     mm_per_px = rig.baseline / d_c  # at depth z = f B / d_c one pixel covers z / f = B / d_c
     walls: list[Primitive] = [disparity_plane(rig, ax, ay, d_c, rng.uniform(0, 2 * math.pi),
                                               sample_material(rng, level, mm_per_px))]
@@ -205,6 +261,7 @@ def _sample_background(rng: np.random.Generator, rig: Rig, level: dict,
         beta = d_bottom / (H - 0.5 - horizon)
         alpha = rng.uniform(-0.1, 0.1) * d_bottom / W
         d_centre = beta * (cy - horizon)
+        alpha, beta, d_centre = fit_disparity_plane(rig, alpha, beta, d_centre, max_disp)
         walls.append(disparity_plane(rig, alpha, beta, d_centre, rng.uniform(0, 2 * math.pi),
                                      sample_material(rng, level, rig.baseline / (0.5 * d_bottom))))
     if rng.random() < level["walls"][1]:  # side wall: disparity grows towards one image side
@@ -214,6 +271,7 @@ def _sample_background(rng: np.random.Generator, rig: Rig, level: dict,
         alpha = side * d_edge / (abs((cx + side * W / 2) - x_v) + 1.0)
         beta = rng.uniform(-0.1, 0.1) * d_edge / H
         d_centre = alpha * (cx - x_v)
+        alpha, beta, d_centre = fit_disparity_plane(rig, alpha, beta, d_centre, max_disp)
         walls.append(disparity_plane(rig, alpha, beta, d_centre, rng.uniform(0, 2 * math.pi),
                                      sample_material(rng, level, rig.baseline / (0.5 * d_edge))))
     return walls, (ax, ay, d_c)
@@ -226,6 +284,20 @@ def _blob_radii(rng: np.random.Generator, n: int = 64) -> np.ndarray:
         r += rng.uniform(0, 0.35) / k * np.cos(k * theta + rng.uniform(0, 2 * math.pi))
     r = np.clip(r, 0.2, None)
     return r / r.max()
+
+
+def _min_centre_depth(rig: Rig, ray: np.ndarray, radius: float, max_disp: int) -> float:
+    """Smallest left depth z of a bounding sphere of ``radius`` centred at ``z ray`` (ray = (xn, yn, 1)) whose
+    every point has depth disparity ``f B / z_cam <= max_disp`` in both cameras (each with its own focal
+    length): ``z_cam(centre) - radius >= f_cam B / max_disp``."""
+    z = 0.0
+    for cam in (rig.left, rig.right):
+        z_min = float(cam.K[0, 0]) * rig.baseline / max_disp * (1 + 1e-6)
+        rz = float(cam.R[2] @ ray)  # z_cam(z ray) = z rz + t_z
+        if rz <= 1e-3:
+            raise ValueError("rig: an object ray points away from the right camera; rotation too large")
+        z = max(z, (z_min + radius - float(cam.t[2])) / rz)
+    return z
 
 
 def _sample_object(rng: np.random.Generator, rig: Rig, level: dict, max_disp: int,
@@ -242,9 +314,9 @@ def _sample_object(rng: np.random.Generator, rig: Rig, level: dict, max_disp: in
     z = f * B / d
     r_px = math.exp(rng.uniform(math.log(level["size"][0]), math.log(level["size"][1]))) * min(H, W)
     radius = r_px * z / f
-    z_min = f * B / max_disp * (1 + 1e-6)
-    z = max(z, z_min + radius)  # nearest point of the bounding sphere stays within max_disp
-    centre = z * np.array([(x - cx) / f, (y - cy) / f, 1.0])
+    ray = np.array([(x - cx) / f, (y - cy) / f, 1.0])
+    z = max(z, _min_centre_depth(rig, ray, radius, max_disp))
+    centre = z * ray
     mat = sample_material(rng, level, z / f)
     kind = ("patch", "sphere", "cylinder")[int(rng.choice(3, p=np.array(level["kinds"]) / sum(level["kinds"])))]
     roll = rng.uniform(0, 2 * math.pi)
@@ -276,6 +348,10 @@ def _sample_object(rng: np.random.Generator, rig: Rig, level: dict, max_disp: in
 def sample_scene(rng: np.random.Generator, difficulty: int, rig: Rig, max_disp: int,
                  num_objects: int | None = None) -> Scene:
     """A random scene for ``rig``: background walls plus objects, all disparities in ``(0, max_disp]``.
+
+    Both cameras are bounded: every object's bounding sphere has depth ``z_cam >= f_cam B / max_disp`` in each
+    camera, and walls are moved back (parallel to themselves) until both images see them within the range,
+    with the right camera on the left camera's side of every wall.
 
     Args:
         rng: numpy Generator (the only source of randomness).

@@ -230,3 +230,51 @@ def test_camera_effects_change_the_images_not_the_scene():
     # per-camera gain/gamma/vignetting/noise/blur make the two views differ photometrically
     assert warp_error(real) > 2 * warp_error(clean)
     assert (real["left"] - clean["left"]).abs().mean() > 0.005
+
+
+RANGE_TOL = 0.01  # relative slack on max_disp
+
+
+@pytest.mark.parametrize("rectified", [True, False])
+def test_both_disparity_maps_stay_in_range_over_many_scenes(rectified):
+    """Every surface lies in front of both cameras with f B / z <= max_disp (regression: objects near the
+    right camera and side walls tilted past it gave right-view disparities in the thousands)."""
+    h, w = 24, 64
+    for difficulty in range(data_gen.MAX_DIFFICULTY + 1):
+        for index in range(12):
+            p = data_gen.render_pair(3, index, difficulty=difficulty, height=h, width=w, rectified=rectified,
+                                     supersample=1, noise=False, photometric=False, blur=False)
+            rig, md = p["rig"], p["max_disp"]
+            hi = md * (1 + RANGE_TOL)
+            v, vr = p["valid"], p["valid_right"]
+            assert v.float().mean() > 0.9 and vr.float().mean() > 0.9, (difficulty, index)
+            d, dr = p["disparity"][v], p["disparity_right"][vr]
+            z_r = data_gen.render_view(p["scene"], rig.right, supersample=1)["depth"][vr[0]]
+            depth_disp = rig.left.K[0, 0] * rig.baseline / p["depth"][v].double()
+            depth_disp_r = rig.right.K[0, 0] * rig.baseline / z_r.double()
+            for name, x in (("left", depth_disp), ("right", depth_disp_r)):
+                assert float(x.min()) > 0 and float(x.max()) <= hi, (name, difficulty, index, float(x.max()))
+            if rectified:  # the disparities themselves are f B / z
+                assert float(d.min()) > 0 and float(d.max()) <= hi, (difficulty, index)
+                assert float(dr.min()) > 0 and float(dr.max()) <= hi, (difficulty, index)
+            else:  # horizontal correspondence component: f B / z plus the rig's rotation / principal-point shift
+                for x in (d, dr):
+                    assert float(x.min()) > -0.25 * w and float(x.max()) <= hi + 0.25 * w, (difficulty, index)
+
+
+def test_ground_truth_marks_unrepresentable_disparities_invalid():
+    """A hand-made scene with a sphere far too close for max_disp: its pixels get no ground truth."""
+    from data_gen.pair import _ground_truth
+
+    rig = data_gen.sample_rig(np.random.default_rng(0), 32, 64)
+    f, b = rig.focal, rig.baseline
+    wall = data_gen.Plane([0, 0, f * b / 5], [0, 0, 1])
+    near = data_gen.Sphere([0, 0, f * b / 40], f * b / 40 * 0.1)  # disparity ~44 > max_disp = 20
+    scene = data_gen.Scene([wall, near], max_disp=20)
+    views = [data_gen.render_view(scene, rig.left, 1, second_eye=rig.right.center),
+             data_gen.render_view(scene, rig.right, 1)]
+    gt = _ground_truth(scene, rig, views[0], views[1])
+    on_ball = views[0]["ids"] == 1
+    assert on_ball.any() and not gt["valid"][0][on_ball].any()
+    assert gt["valid"][0][~on_ball].all() and float(gt["disparity"].max()) <= 20
+    assert float(gt["disparity_right"][gt["valid_right"]].max()) <= 20
