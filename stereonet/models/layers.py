@@ -42,6 +42,12 @@ def standardize_image(image: torch.Tensor) -> torch.Tensor:
     return (image - mean) / (std + 1e-2)  # 1e-2: keeps flat images finite (std is ~0.2 on natural images)
 
 
+def unit_channels(x: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    """Scale each pixel's feature vector to unit length: :math:`(B, C, H, W)` -> same (``F.normalize`` along
+    channels, written as a sum of squares because torch's strided channel norm is several times slower on CPU)."""
+    return x * torch.rsqrt((x * x).sum(dim=1, keepdim=True) + eps * eps)
+
+
 def correlation_1d(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int) -> torch.Tensor:
     """DispNet 1-D correlation along the scanline (a similarity volume, higher = better).
 
@@ -61,6 +67,35 @@ def correlation_1d(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: 
     for d in range(min(max_disp + 1, w)):
         similarity[:, d, :, d:] = (feat_left[..., d:] * feat_right[..., : w - d]).mean(dim=1)
     return similarity
+
+
+def warp_right(feat_right: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
+    """Sample the right view at ``x - disparity`` (bilinear, zeros outside): the right features seen from the
+    left view. feat_right :math:`(B, C, H, W)`, disparity :math:`(B, 1, H, W)` in pixels of this scale."""
+    b, _, h, w = feat_right.shape
+    xs = torch.arange(w, device=feat_right.device, dtype=feat_right.dtype).view(1, 1, w) - disparity[:, 0]
+    ys = torch.arange(h, device=feat_right.device, dtype=feat_right.dtype).view(1, h, 1).expand(b, h, w)
+    grid = torch.stack([2.0 * xs / max(w - 1, 1) - 1.0, 2.0 * ys / max(h - 1, 1) - 1.0], dim=-1)  # BxHxWx2
+    return F.grid_sample(feat_right, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+
+
+def local_correlation(feat_left: torch.Tensor, feat_right: torch.Tensor, disparity: torch.Tensor,
+                      radius: int) -> torch.Tensor:
+    """Correlation of the left features with the right ones warped by ``disparity + s``, s = -radius..radius.
+
+    ``similarity[b, k, y, x] = mean_c feat_left[b, c, y, x] * feat_right[b, c, y, x - disparity - (k - radius)]``
+    (bilinear in x). Args: features :math:`(B, C, H, W)`, disparity :math:`(B, 1, H, W)` in pixels of this
+    scale. Returns :math:`(B, 2 radius + 1, H, W)`, differentiable in the features and the disparity.
+    """
+    if feat_left.shape != feat_right.shape:
+        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
+    b, c, h, w = feat_left.shape
+    k = 2 * radius + 1
+    shifts = torch.arange(-radius, radius + 1, device=disparity.device, dtype=disparity.dtype).view(1, k, 1, 1)
+    disp_k = (disparity + shifts).reshape(b * k, 1, h, w)  # (B*K)x1xHxW
+    right_k = feat_right.repeat_interleave(k, dim=0)  # (B*K)xCxHxW
+    warped = warp_right(right_k, disp_k).view(b, k, c, h, w)
+    return (feat_left.unsqueeze(1) * warped).mean(dim=2)  # BxKxHxW
 
 
 class InputPadder:

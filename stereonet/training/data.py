@@ -59,7 +59,7 @@ class RandomShiftStereo(Dataset):
 
 
 def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: int, width: int,
-                  supersample: int = 2) -> Dataset:
+                  supersample: int = 2, max_disp: int | None = None) -> Dataset:
     if source == "random-shift":
         return RandomShiftStereo(count, seed=seed, height=height, width=width, max_disp=max(1, width // 8))
     if source == "data_gen":
@@ -67,9 +67,26 @@ def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: i
             import data_gen
         except ImportError as e:  # pragma: no cover - data_gen ships with stereonet
             raise ImportError("source: 'data_gen' needs the data_gen package (pip install -e .)") from e
+        options = {} if max_disp is None else {"max_disp": int(max_disp)}
         return data_gen.SyntheticStereo(count, seed=seed, difficulty=difficulty, height=height, width=width,
-                                        supersample=supersample)
+                                        supersample=supersample, **options)
     raise ValueError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
+
+
+def sample_max_disp(source: str, difficulty: int, width: int, disparity_range: int | None,
+                    generator: torch.Generator) -> int | None:
+    """Disparity range of one training pair: None (the difficulty's own, scaled with ``width``) or, when
+    ``disparity_range`` is set, uniform between the difficulty's and ``disparity_range`` (kept < width / 2),
+    so that small training renders still show the large disparities of full-size images."""
+    if source != "data_gen" or not disparity_range:
+        return None
+    import data_gen
+
+    low = data_gen.default_max_disp(difficulty, width)
+    high = min(int(disparity_range), (width - 1) // 2)
+    if high <= low:
+        return None
+    return int(torch.randint(low, high + 1, (1,), generator=generator))
 
 
 def max_difficulty(source: str) -> int:
@@ -131,9 +148,9 @@ class PooledCurriculumStream(IterableDataset):
     """
 
     def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
-                 augment: bool, difficulty, start, supersample: int = 2) -> None:
+                 augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
-        self.supersample = supersample
+        self.supersample, self.disparity_range = supersample, disparity_range
         self.pool_size, self.reuse, self.augment = max(1, pool_size), max(1, reuse), augment
         self.difficulty, self.start = difficulty, start  # multiprocessing Values shared with workers
 
@@ -147,8 +164,10 @@ class PooledCurriculumStream(IterableDataset):
         while True:
             if len(pool) < self.pool_size or counter % self.reuse == 0:
                 index = counter * nworkers + wid
-                ds = _make_dataset(self.source, index + 1, stream_seed, int(self.difficulty.value),
-                                   self.height, self.width, self.supersample)
+                level = int(self.difficulty.value)
+                max_disp = sample_max_disp(self.source, level, self.width, self.disparity_range, g)
+                ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height, self.width,
+                                   self.supersample, max_disp)
                 pool.append(ds[index])
                 pool = pool[-self.pool_size:]
             counter += 1
@@ -204,13 +223,15 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         num_workers: DataLoader workers rendering training pairs in parallel with the training step.
         augment: swap-flip and photometric augmentation of training pairs.
         supersample: data_gen anti-aliasing rays per pixel side (2 = like real photos; 1 is ~4x faster).
+        disparity_range: when set, each training pair's disparity range is drawn between its difficulty's
+            and this value (see :func:`sample_max_disp`); validation pairs keep their difficulty's.
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
                  pool_size: int = 32, reuse: int = 4, val_pairs: int = 16, val_height: int | None = None,
                  val_width: int | None = None, seed: int = 0, val_seed: int = 900_000,
                  curriculum_fraction: float = 0.5, min_difficulty: int = 0, num_workers: int = 0,
-                 augment: bool = True, supersample: int = 2) -> None:
+                 augment: bool = True, supersample: int = 2, disparity_range: int | None = None) -> None:
         super().__init__()
         self.save_hyperparameters()
         if source not in ("data_gen", "random-shift"):
@@ -247,7 +268,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
     def train_dataloader(self) -> DataLoader:
         hp = self.hparams
         stream = PooledCurriculumStream(hp.source, hp.seed, hp.height, hp.width, hp.pool_size, hp.reuse,
-                                        hp.augment, self._difficulty, self._start, hp.supersample)
+                                        hp.augment, self._difficulty, self._start, hp.supersample,
+                                        hp.disparity_range)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

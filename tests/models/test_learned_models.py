@@ -7,7 +7,7 @@ import torch
 
 from stereonet.checks import StereoInputError
 from stereonet.models.dispnet import DispNet, DispNetOutput, predict_disparity
-from stereonet.models.layers import InputPadder, correlation_1d
+from stereonet.models.layers import InputPadder, correlation_1d, local_correlation, unit_channels
 from stereonet.models.siamese import (
     INVALID_COST,
     SiameseNet,
@@ -76,6 +76,40 @@ def test_correlation_gradcheck():
     fl = torch.rand(1, 2, 2, 5, generator=g, dtype=torch.float64, requires_grad=True)
     fr = torch.rand(1, 2, 2, 5, generator=g, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda a, b: correlation_1d(a, b, 2), (fl, fr))
+
+
+def test_local_correlation_integer_disparity_matches_global():
+    # at an integer disparity field d, shift s must give the global correlation at level d + s
+    g = torch.Generator().manual_seed(3)
+    fl, fr = torch.rand(2, 4, 3, 12, generator=g), torch.rand(2, 4, 3, 12, generator=g)
+    disp = torch.randint(2, 5, (2, 1, 3, 12), generator=g).float()
+    local = local_correlation(fl, fr, disp, radius=2)
+    full = correlation_1d(fl, fr, 8)
+    for k, s in enumerate(range(-2, 3)):
+        level = (disp + s).long()
+        want = full.gather(1, level)[:, 0]
+        x = torch.arange(12).view(1, 1, 12)
+        inside = (x - level[:, 0]) >= 0
+        assert torch.allclose(local[:, k][inside], want[inside], atol=1e-6)
+        assert torch.all(local[:, k][~inside].abs() < 1e-6)  # zeros outside the right image
+
+
+def test_local_correlation_subpixel_is_linear_and_differentiable():
+    g = torch.Generator().manual_seed(4)
+    fl = torch.rand(1, 3, 2, 9, generator=g, dtype=torch.float64)
+    fr = torch.rand(1, 3, 2, 9, generator=g, dtype=torch.float64)
+    half = local_correlation(fl, fr, torch.full((1, 1, 2, 9), 2.5, dtype=torch.float64), radius=0)
+    lo = local_correlation(fl, fr, torch.full((1, 1, 2, 9), 2.0, dtype=torch.float64), radius=0)
+    hi = local_correlation(fl, fr, torch.full((1, 1, 2, 9), 3.0, dtype=torch.float64), radius=0)
+    assert torch.allclose(half[..., 3:], 0.5 * (lo + hi)[..., 3:])  # bilinear between integer shifts
+    disp = torch.full((1, 1, 2, 9), 1.3, dtype=torch.float64, requires_grad=True)
+    fl.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda a, d: local_correlation(a, fr, d, radius=1), (fl, disp))
+
+
+def test_unit_channels_equals_normalize():
+    x = torch.randn(2, 5, 4, 6)
+    assert torch.allclose(unit_channels(x), torch.nn.functional.normalize(x, dim=1), atol=1e-6)
 
 
 def test_smd_queries_at_higher_resolution_and_uncertainty():

@@ -3,7 +3,9 @@ atomic checkpoints and resuming after a kill."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
+from unittest import mock
 
 import pytest
 import torch
@@ -23,7 +25,8 @@ TINY = ["--data.source", "random-shift", "--data.height", "32", "--data.width", 
 def _cli(args):
     from stereonet.cli.train import main
 
-    return main(args=args, run=False)
+    with mock.patch.object(sys, "argv", ["train.py"]):  # pytest's own argv is not the CLI's
+        return main(args=args, run=False)
 
 
 def test_configs_exist():
@@ -207,3 +210,19 @@ def test_resume_from_last_checkpoint(tmp_path, monkeypatch):
     cli = _cli([*common, "--trainer.max_steps", "4"])
     cli.trainer.fit(cli.model, datamodule=cli.datamodule, ckpt_path="last")
     assert cli.trainer.global_step == 4
+
+
+def test_sample_max_disp_widens_the_range_within_bounds():
+    import data_gen
+
+    from stereonet.training.data import sample_max_disp
+
+    g = torch.Generator().manual_seed(0)
+    low = data_gen.default_max_disp(1, 256)
+    draws = [sample_max_disp("data_gen", 1, 256, 96, g) for _ in range(200)]
+    assert min(draws) >= low and max(draws) <= 96 and len(set(draws)) > 10
+    capped = [sample_max_disp("data_gen", 0, 128, 500, g) for _ in range(50)]
+    assert max(capped) <= 63  # below half the width, as data_gen requires
+    assert sample_max_disp("data_gen", 1, 256, None, g) is None
+    assert sample_max_disp("random-shift", 1, 256, 96, g) is None
+    assert sample_max_disp("data_gen", 4, 256, 8, g) is None  # the difficulty's own range is larger already
