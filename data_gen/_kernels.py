@@ -108,113 +108,150 @@ def pack_scene(scene, camera=None) -> dict[str, np.ndarray]:
     return dict(objs=objs, edges=edges, blobs=blobs, mats=mats, boxes=boxes, bank=bank)
 
 
-@numba.njit(cache=True)
-def _dot(a, i, x, y, z):
-    return a[i] * x + a[i + 1] * y + a[i + 2] * z
+@numba.njit(cache=True, error_model="numpy")
+def zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, skip_planes, t_out, ids_out
+            ):  # pragma: no cover - compiled
+    """Nearest hit ``t_out[i]`` (inf on a miss) and its object ``ids_out[i]`` (-1) of every ray
+    ``origin + t dirs[i]``, object by object: each object is intersected only with the rays inside its pixel
+    box ``boxes[k] = (x0, x1, y0, y1)`` (NaN row = never visible).
 
+    ``grid_w > 0``: the rays are a row-major pixel grid of that width (ray ``i`` through pixel
+    ``(i % grid_w, i // grid_w)``), so each box is a block of rows and ``pix`` is unused; else ``pix[i]`` is
+    the pixel of ray i. ``skip_planes``: leave infinite planes out. Same first hits as the torch primitives.
 
-@numba.njit(cache=True)
-def _dot2(a, k, i, x, y, z):
-    return a[k, i] * x + a[k, i + 1] * y + a[k, i + 2] * z
-
-
-@numba.njit(cache=True)
-def _origin_constants(objs, ox, oy, oz):  # pragma: no cover - compiled
-    """Per object, the ray-independent terms of :func:`_intersect` for rays from (ox, oy, oz):
-    planes/patches: (n.o - k or n.c, e1.(o - c), e2.(o - c)); spheres/cylinders: (o - c), |o - c|^2, axis.(o - c)."""
-    pre = np.zeros((objs.shape[0], 6))
-    for k in range(objs.shape[0]):
-        o = objs[k]
-        typ = int(o[TYPE])
-        mx, my, mz = ox - o[CX], oy - o[CX + 1], oz - o[CX + 2]
-        if typ == PLANE:
-            pre[k, 0] = o[KOFF] - _dot(o, NRM, ox, oy, oz)
-        elif typ == PATCH:
-            pre[k, 0] = -_dot(o, NRM, mx, my, mz)
-            pre[k, 1] = _dot(o, E1, mx, my, mz)
-            pre[k, 2] = _dot(o, E2, mx, my, mz)
-        else:
-            pre[k, 0], pre[k, 1], pre[k, 2] = mx, my, mz
-            pre[k, 3] = mx * mx + my * my + mz * mz
-            pre[k, 4] = _dot(o, NRM, mx, my, mz)
-    return pre
-
-
-@numba.njit(cache=True)
-def _intersect(objs, pre, edges, blobs, k, dx, dy, dz, dd):  # pragma: no cover - compiled
-    """Ray parameter of the first hit of object row ``o`` (inf on a miss), as the torch primitives.
-
-    ``pre``: :func:`_origin_constants` of the objects; ``dd = |d|^2``. (Indexing the full arrays rather than
-    passing row views keeps numba from building array views in the inner loop.)
+    Everything of the inner loop is written inline: calls taking arrays cost ~100 ns each in numba.
     """
-    typ = int(objs[k, TYPE])
-    inf = np.inf
-    if typ == PLANE or typ == PATCH:
-        denom = _dot2(objs, k, NRM, dx, dy, dz)
-        if denom == 0.0:
-            return inf
-        t = pre[k, 0] / denom
-        if not t > T_EPS:
-            return inf
+    n = dirs.shape[0]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(n):
+        t_out[i] = np.inf
+        ids_out[i] = -1
+    h = n // grid_w if grid_w > 0 else 1
+    for k in range(objs.shape[0]):
+        typ = int(objs[k, TYPE])
+        if skip_planes and typ == PLANE:
+            continue
+        x0, x1, y0, y1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        if not (x0 <= x1 and y0 <= y1):
+            continue
+        # ray-independent terms
+        cx, cy, cz = objs[k, CX], objs[k, CX + 1], objs[k, CX + 2]
+        mx, my, mz = ox - cx, oy - cy, oz - cz
+        a0, a1, a2 = objs[k, NRM], objs[k, NRM + 1], objs[k, NRM + 2]
+        u0, u1, u2 = objs[k, E1], objs[k, E1 + 1], objs[k, E1 + 2]
+        v0, v1, v2 = objs[k, E2], objs[k, E2 + 1], objs[k, E2 + 2]
         if typ == PLANE:
-            return t
-        un = (pre[k, 1] + t * _dot2(objs, k, E1, dx, dy, dz)) / objs[k, SU]
-        vn = (pre[k, 2] + t * _dot2(objs, k, E2, dx, dy, dz)) / objs[k, SV]
+            num = objs[k, KOFF] - (a0 * ox + a1 * oy + a2 * oz)
+        else:
+            num = -(a0 * mx + a1 * my + a2 * mz)
+        pu = u0 * mx + u1 * my + u2 * mz
+        pv = v0 * mx + v1 * my + v2 * mz
+        mm = mx * mx + my * my + mz * mz
+        ma = a0 * mx + a1 * my + a2 * mz  # (o - c) . axis
+        inv_su, inv_sv = 1.0 / max(objs[k, SU], 1e-300), 1.0 / max(objs[k, SV], 1e-300)
         shape = int(objs[k, SHAPE])
-        r2 = un * un + vn * vn
-        if shape == 0:
-            return t if r2 <= 1.0 else inf
-        if shape == 1:
-            for j in range(int(objs[k, NEDGE])):
-                if un * edges[k, j, 0] + vn * edges[k, j, 1] > edges[k, j, 2]:
-                    return inf
-            return t
-        n = int(objs[k, NBLOB])
-        if r2 > 1.0:  # blob radii are <= 1
-            return inf
-        pos = (math.atan2(vn, un) * (n / (2 * math.pi))) % n
-        i0 = min(int(pos), n - 1)
-        frac = pos - i0
-        r = blobs[k, i0] * (1 - frac) + blobs[k, (i0 + 1) % n] * frac
-        return t if r2 <= r * r else inf
-    mx, my, mz, mm = pre[k, 0], pre[k, 1], pre[k, 2], pre[k, 3]
-    dm = dx * mx + dy * my + dz * mz
-    r = objs[k, RAD]
-    if typ == SPHERE:
-        disc = dm * dm - dd * (mm - r * r)
-        if disc < 0:
-            return inf
-        sq = math.sqrt(disc)
-        t = (-dm - sq) / dd
-        if not t > T_EPS:
-            t = (-dm + sq) / dd
-        return t if t > T_EPS else inf
-    # cylinder: side wall (both roots) and caps
-    da = _dot2(objs, k, NRM, dx, dy, dz)
-    ma = pre[k, 4]
-    L = objs[k, HALF]
-    qa = dd - da * da
-    qb = dm - da * ma
-    qc = mm - ma * ma - r * r
-    disc = qb * qb - qa * qc
-    best = inf
-    if disc >= 0 and qa != 0.0:
-        sq = math.sqrt(disc)
-        for sign in (-1.0, 1.0):
-            t = (-qb + sign * sq) / qa
-            if t > T_EPS and abs(ma + t * da) <= L and t < best:
-                best = t
-    if da != 0.0:
-        for cap in (-L, L):
-            t = (cap - ma) / da
-            rho2 = mm + 2 * t * dm + t * t * dd - cap * cap
-            if t > T_EPS and rho2 <= r * r and t < best:
-                best = t
-    return best
+        n_edge = int(objs[k, NEDGE])
+        n_blob = int(objs[k, NBLOB])
+        rad = objs[k, RAD]
+        half = objs[k, HALF]
+        if grid_w > 0:
+            r0 = max(0, int(math.ceil(max(y0, -1.0))))
+            r1 = min(h - 1, int(math.floor(min(y1, h + 1.0))))
+            c0 = max(0, int(math.ceil(max(x0, -1.0))))
+            c1 = min(grid_w - 1, int(math.floor(min(x1, grid_w + 1.0))))
+            if r1 < r0 or c1 < c0:
+                continue
+            n_seg, seg_len = r1 - r0 + 1, c1 - c0 + 1
+        else:
+            r0 = c0 = 0
+            n_seg, seg_len = 1, n
+        for sgi in range(n_seg):
+            start = (r0 + sgi) * grid_w + c0 if grid_w > 0 else 0
+            for i in range(start, start + seg_len):
+                if grid_w <= 0:
+                    px, py = pix[i, 0], pix[i, 1]
+                    if not (px >= x0 and px <= x1 and py >= y0 and py <= y1):
+                        continue
+                dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+                best = t_out[i]
+                t = np.inf
+                if typ == PLANE or typ == PATCH:
+                    denom = a0 * dx + a1 * dy + a2 * dz
+                    if denom == 0.0:
+                        continue
+                    t = num / denom
+                    if not (t > T_EPS and t < best):
+                        continue
+                    if typ == PATCH:
+                        un = (pu + t * (u0 * dx + u1 * dy + u2 * dz)) * inv_su
+                        vn = (pv + t * (v0 * dx + v1 * dy + v2 * dz)) * inv_sv
+                        r2 = un * un + vn * vn
+                        if shape == 0:
+                            if r2 > 1.0:
+                                continue
+                        elif shape == 1:
+                            out = False
+                            for j in range(n_edge):
+                                if un * edges[k, j, 0] + vn * edges[k, j, 1] > edges[k, j, 2]:
+                                    out = True
+                                    break
+                            if out:
+                                continue
+                        else:
+                            if r2 > 1.0:  # blob radii are <= 1
+                                continue
+                            pos = math.atan2(vn, un) * (n_blob / (2 * math.pi))
+                            if pos < 0:
+                                pos += n_blob
+                            i0 = min(int(pos), n_blob - 1)
+                            frac = pos - i0
+                            i1 = i0 + 1 if i0 + 1 < n_blob else 0
+                            rb = blobs[k, i0] * (1 - frac) + blobs[k, i1] * frac
+                            if r2 > rb * rb:
+                                continue
+                else:
+                    dd = dx * dx + dy * dy + dz * dz
+                    dm = dx * mx + dy * my + dz * mz
+                    if typ == SPHERE:
+                        disc = dm * dm - dd * (mm - rad * rad)
+                        if disc < 0:
+                            continue
+                        sq = math.sqrt(disc)
+                        t = (-dm - sq) / dd
+                        if not t > T_EPS:
+                            t = (-dm + sq) / dd
+                        if not (t > T_EPS and t < best):
+                            continue
+                    else:  # cylinder: side wall (both roots) and caps
+                        da = a0 * dx + a1 * dy + a2 * dz
+                        qa = dd - da * da
+                        qb = dm - da * ma
+                        qc = mm - ma * ma - rad * rad
+                        disc = qb * qb - qa * qc
+                        if disc >= 0 and qa != 0.0:
+                            sq = math.sqrt(disc)
+                            tc = (-qb - sq) / qa
+                            if tc > T_EPS and abs(ma + tc * da) <= half and tc < t:
+                                t = tc
+                            tc = (-qb + sq) / qa
+                            if tc > T_EPS and abs(ma + tc * da) <= half and tc < t:
+                                t = tc
+                        if da != 0.0:
+                            tc = (-half - ma) / da
+                            if tc > T_EPS and tc < t and mm + 2 * tc * dm + tc * tc * dd - half * half <= rad * rad:
+                                t = tc
+                            tc = (half - ma) / da
+                            if tc > T_EPS and tc < t and mm + 2 * tc * dm + tc * tc * dd - half * half <= rad * rad:
+                                t = tc
+                        if not t < best:
+                            continue
+                t_out[i] = t
+                ids_out[i] = k
 
 
 @numba.njit(cache=True)
-def _sample_bank(bank, slot, s, t, per_sample):  # pragma: no cover - compiled
+def _bank_taps(s, t, per_sample):  # pragma: no cover - compiled
+    """Bilinear taps of a bank lookup: flat indices (i00, i01, i10, i11) into a mip pyramid and weights."""
     level = 0
     if per_sample > 1.0:
         level = min(int(math.floor(math.log2(per_sample) + 0.5)), MIP_LEVELS - 1)
@@ -226,17 +263,11 @@ def _sample_bank(bank, slot, s, t, per_sample):  # pragma: no cover - compiled
     y = t * scale - 0.5
     x0f = math.floor(x)
     y0f = math.floor(y)
-    fx = x - x0f
-    fy = y - y0f
     x0 = int(x0f) & mask
     y0 = int(y0f) & mask
     x1 = (x0 + 1) & mask
     y1 = (y0 + 1) & mask
-    r0 = y0 * size + off
-    r1 = y1 * size + off
-    top = bank[slot, r0 + x0] * (1 - fx) + bank[slot, r0 + x1] * fx
-    bottom = bank[slot, r1 + x0] * (1 - fx) + bank[slot, r1 + x1] * fx
-    return top * (1 - fy) + bottom * fy
+    return y0 * size + off + x0, y0 * size + off + x1, y1 * size + off + x0, y1 * size + off + x1, x - x0f, y - y0f
 
 
 @numba.njit(cache=True)
@@ -245,121 +276,71 @@ def _smooth_square(phase, softness):
 
 
 @numba.njit(cache=True)
-def _albedo(m, bank, u, v, footprint, out, i):  # pragma: no cover - compiled
-    """Material row ``m`` at surface coordinates (u, v), written to ``out[i]`` (as ``Material.albedo``)."""
-    inv = 1.0 / m[TEXEL]
-    s = (m[COS] * inv) * u - (m[SIN] * inv) * v + m[OFF]
-    t = (m[SIN] * inv) * u + (m[COS] * inv) * v + m[OFF + 1]
-    per_sample = footprint / m[TEXEL]
-    kind = int(m[KIND])
-    g2 = 0.5
-    if kind == K_FLAT:
-        g1 = 0.5
-    elif kind == K_BANK or kind == K_WEAK:
-        g1 = _sample_bank(bank, int(m[BANK0]), s, t, per_sample)
-    elif kind == K_MIX:
-        g1 = _sample_bank(bank, int(m[BANK0]), s, t, per_sample)
-        g2 = _sample_bank(bank, int(m[BANK1]), s / m[SCALE2] + 17.0, t / m[SCALE2] + 5.0, per_sample / m[SCALE2])
-    else:
-        period = m[PERIOD]
-        if kind == K_STRIPES:
-            g1 = _smooth_square(s * (2 * math.pi / period), 0.15)
-            mean = 0.5
-        elif kind == K_GRID:
-            fs = (s / period) % 1.0
-            ft = (t / period) % 1.0
-            g1 = 1.0 if (fs < m[DUTY] or ft < m[DUTY]) else 0.0
-            mean = 1 - (1 - m[DUTY]) ** 2
-        else:
-            w = 2 * math.pi / period
-            a = _smooth_square(s * w, 0.1) * 2 - 1
-            g1 = 0.5 + 0.5 * a * (_smooth_square(t * w, 0.1) * 2 - 1)
-            mean = 0.5
-        keep = min(max((period / per_sample - 2.0) / 2.0, 0.0), 1.0)
-        g1 = mean + keep * (g1 - mean)
-    g1 = 0.5 + m[CONTRAST] * (g1 - 0.5)
-    for c in range(3):
-        val = m[COLORS + c] + g1 * (m[COLORS + 3 + c] - m[COLORS + c]) + (g2 - 0.5) * m[COLORS + 6 + c]
-        out[i, c] = min(max(val, 0.0), 1.0)
-
-
-@numba.njit(cache=True)
-def _blinn_phong(ks, shininess, nx, ny, nz, vx, vy, vz, light):  # pragma: no cover - compiled
-    """``ks max(0, n . h)^shininess`` with h the unit half vector of the view direction v and the light."""
+def _blinn_phong(ks, shininess, nx, ny, nz, vx, vy, vz, lx, ly, lz):  # pragma: no cover - compiled
+    """``ks max(0, n . h)^shininess`` with h the unit half vector of the view direction v and the light l."""
     vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-    hx, hy, hz = vx / vn + light[0], vy / vn + light[1], vz / vn + light[2]
+    hx, hy, hz = vx / vn + lx, vy / vn + ly, vz / vn + lz
     hn = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
     return ks * max((nx * hx + ny * hy + nz * hz) / hn, 0.0) ** shininess
 
 
-@numba.njit(cache=True)
-def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacing, light, ambient, specular,
-                eye2, t_out, ids_out, points_out, normals_out, rgb_out, spec_out, spec2_out
-                ):  # pragma: no cover - compiled
-    """First hit, surface, albedo and shading of every ray ``origin + t dirs[i]`` (pixel ``pix[i]``).
-
-    ``spec2_out`` receives the specular radiance of the same points towards a second viewpoint ``eye2``
-    (e.g. the other camera of the rig; ignored when ``eye2`` has no element).
-    """
-    n_obj = objs.shape[0]
+@numba.njit(cache=True, error_model="numpy")
+def shade(dirs, origin, t_hit, ids, objs, mats, bank, spacing, light, ambient, specular, eye2, points_out,
+          normals_out, rgb_out, spec_out, spec2_out):  # pragma: no cover - compiled
+    """Surface, albedo and shading of the hits ``origin + t_hit[i] dirs[i]`` on objects ``ids[i]`` (misses,
+    id < 0, get zeros): points, normals (facing the ray), rgb radiance, specular radiance towards the origin
+    and (``eye2`` of 3 elements) towards a second viewpoint. As ``shade`` / ``Material.albedo`` of the torch
+    path; written inline (no array-taking calls in the loop)."""
     ox, oy, oz = origin[0], origin[1], origin[2]
-    pre = _origin_constants(objs, ox, oy, oz)
-    albedo = np.zeros((1, 3))
+    lx, ly, lz = light[0], light[1], light[2]
+    second = eye2.shape[0] == 3
+    ex, ey, ez = (eye2[0], eye2[1], eye2[2]) if second else (0.0, 0.0, 0.0)
     for i in range(dirs.shape[0]):
-        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        dd = dx * dx + dy * dy + dz * dz
-        px, py = pix[i, 0], pix[i, 1]
-        best = np.inf
-        bid = -1
-        for k in range(n_obj):
-            if not (px >= boxes[k, 0] and px <= boxes[k, 1] and py >= boxes[k, 2] and py <= boxes[k, 3]):
-                continue
-            t = _intersect(objs, pre, edges, blobs, k, dx, dy, dz, dd)
-            if t < best:
-                best = t
-                bid = k
-        t_out[i] = best
-        ids_out[i] = bid
+        bid = ids[i]
+        spec2_out[i] = 0.0
+        spec_out[i] = 0.0
         if bid < 0:
             for c in range(3):
                 points_out[i, c] = 0.0
                 normals_out[i, c] = 0.0
                 rgb_out[i, c] = 0.0
-            spec_out[i] = 0.0
             continue
-        if eye2.shape[0] == 3:
-            spec2_out[i] = 0.0
-        o = objs[bid]
+        best = t_hit[i]
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        dd = dx * dx + dy * dy + dz * dz
         p0, p1, p2 = ox + best * dx, oy + best * dy, oz + best * dz
         points_out[i, 0], points_out[i, 1], points_out[i, 2] = p0, p1, p2
-        typ = int(o[TYPE])
-        r0, r1, r2 = p0 - o[CX], p1 - o[CX + 1], p2 - o[CX + 2]
+        typ = int(objs[bid, TYPE])
+        r0, r1, r2 = p0 - objs[bid, CX], p1 - objs[bid, CX + 1], p2 - objs[bid, CX + 2]
+        a0, a1, a2 = objs[bid, NRM], objs[bid, NRM + 1], objs[bid, NRM + 2]
+        u0, u1, u2 = objs[bid, E1], objs[bid, E1 + 1], objs[bid, E1 + 2]
+        v0, v1, v2 = objs[bid, E2], objs[bid, E2 + 1], objs[bid, E2 + 2]
         if typ == PLANE or typ == PATCH:
-            nx, ny, nz = o[NRM], o[NRM + 1], o[NRM + 2]
-            u = _dot(o, E1, r0, r1, r2)
-            v = _dot(o, E2, r0, r1, r2)
+            nx, ny, nz = a0, a1, a2
+            u = u0 * r0 + u1 * r1 + u2 * r2
+            v = v0 * r0 + v1 * r1 + v2 * r2
         elif typ == SPHERE:
-            rad = o[RAD]
+            rad = objs[bid, RAD]
             nx, ny, nz = r0 / rad, r1 / rad, r2 / rad
-            x = _dot(o, E1, nx, ny, nz)
-            y = _dot(o, E2, nx, ny, nz)
-            z = min(max(_dot(o, NRM, nx, ny, nz), -1.0), 1.0)
+            x = u0 * nx + u1 * ny + u2 * nz
+            y = v0 * nx + v1 * ny + v2 * nz
+            z = min(max(a0 * nx + a1 * ny + a2 * nz, -1.0), 1.0)
             u = rad * math.atan2(y, x)
             v = rad * math.acos(z)
         else:
-            h = _dot(o, NRM, r0, r1, r2)
-            q0, q1, q2 = r0 - h * o[NRM], r1 - h * o[NRM + 1], r2 - h * o[NRM + 2]
+            hh = a0 * r0 + a1 * r1 + a2 * r2
+            q0, q1, q2 = r0 - hh * a0, r1 - hh * a1, r2 - hh * a2
             rho = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-            x = _dot(o, E1, q0, q1, q2)
-            y = _dot(o, E2, q0, q1, q2)
-            if abs(rho - o[RAD]) < abs(abs(h) - o[HALF]):
+            x = u0 * q0 + u1 * q1 + u2 * q2
+            y = v0 * q0 + v1 * q1 + v2 * q2
+            if abs(rho - objs[bid, RAD]) < abs(abs(hh) - objs[bid, HALF]):
                 rr = max(rho, 1e-12)
                 nx, ny, nz = q0 / rr, q1 / rr, q2 / rr
-                u = o[RAD] * math.atan2(y, x)
-                v = h
+                u = objs[bid, RAD] * math.atan2(y, x)
+                v = hh
             else:
-                sg = 1.0 if h > 0 else (-1.0 if h < 0 else 0.0)
-                nx, ny, nz = sg * o[NRM], sg * o[NRM + 1], sg * o[NRM + 2]
+                sg = 1.0 if hh > 0 else (-1.0 if hh < 0 else 0.0)
+                nx, ny, nz = sg * a0, sg * a1, sg * a2
                 u = x
                 v = y
         nd = nx * dx + ny * dy + nz * dz
@@ -367,45 +348,129 @@ def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacin
             nx, ny, nz, nd = -nx, -ny, -nz, -nd
         normals_out[i, 0], normals_out[i, 1], normals_out[i, 2] = nx, ny, nz
         footprint = best * dd * spacing / max(abs(nd), 0.05 * math.sqrt(dd))
-        m = mats[bid]
-        _albedo(m, bank, u, v, footprint, albedo, 0)
-        nl = nx * light[0] + ny * light[1] + nz * light[2]
+        # albedo (Material.albedo): texel coordinates, then the texture kind
+        inv = 1.0 / mats[bid, TEXEL]
+        cs, sn = mats[bid, COS] * inv, mats[bid, SIN] * inv
+        ts = cs * u - sn * v + mats[bid, OFF]
+        tt = sn * u + cs * v + mats[bid, OFF + 1]
+        per_sample = footprint * inv
+        kind = int(mats[bid, KIND])
+        g2 = 0.5
+        if kind == K_FLAT:
+            g1 = 0.5
+        elif kind == K_BANK or kind == K_WEAK or kind == K_MIX:
+            slot = int(mats[bid, BANK0])
+            i00, i01, i10, i11, fx, fy = _bank_taps(ts, tt, per_sample)
+            g1 = ((bank[slot, i00] * (1 - fx) + bank[slot, i01] * fx) * (1 - fy)
+                  + (bank[slot, i10] * (1 - fx) + bank[slot, i11] * fx) * fy)
+            if kind == K_MIX:
+                slot = int(mats[bid, BANK1])
+                sc2 = mats[bid, SCALE2]
+                i00, i01, i10, i11, fx, fy = _bank_taps(ts / sc2 + 17.0, tt / sc2 + 5.0, per_sample / sc2)
+                g2 = ((bank[slot, i00] * (1 - fx) + bank[slot, i01] * fx) * (1 - fy)
+                      + (bank[slot, i10] * (1 - fx) + bank[slot, i11] * fx) * fy)
+        else:
+            period = mats[bid, PERIOD]
+            if kind == K_STRIPES:
+                g1 = _smooth_square(ts * (2 * math.pi / period), 0.15)
+                mean = 0.5
+            elif kind == K_GRID:
+                fs = (ts / period) % 1.0
+                ft = (tt / period) % 1.0
+                duty = mats[bid, DUTY]
+                g1 = 1.0 if (fs < duty or ft < duty) else 0.0
+                mean = 1 - (1 - duty) ** 2
+            else:
+                w = 2 * math.pi / period
+                sq_s = _smooth_square(ts * w, 0.1) * 2 - 1
+                g1 = 0.5 + 0.5 * sq_s * (_smooth_square(tt * w, 0.1) * 2 - 1)
+                mean = 0.5
+            keep = min(max((period / per_sample - 2.0) / 2.0, 0.0), 1.0)
+            g1 = mean + keep * (g1 - mean)
+        g1 = 0.5 + mats[bid, CONTRAST] * (g1 - 0.5)
+        g2 -= 0.5
+        nl = nx * lx + ny * ly + nz * lz
         irradiance = max(nl * (1 - ambient), 0.0) + ambient
         spec = 0.0
-        if specular and m[KS] > 0 and nl > 0:
-            spec = _blinn_phong(m[KS], m[SHINY], nx, ny, nz, ox - p0, oy - p1, oz - p2, light)
-            if eye2.shape[0] == 3:
-                spec2_out[i] = _blinn_phong(m[KS], m[SHINY], nx, ny, nz, eye2[0] - p0, eye2[1] - p1, eye2[2] - p2,
-                                            light)
+        ks = mats[bid, KS]
+        if specular and ks > 0 and nl > 0:
+            spec = _blinn_phong(ks, mats[bid, SHINY], nx, ny, nz, ox - p0, oy - p1, oz - p2, lx, ly, lz)
+            if second:
+                spec2_out[i] = _blinn_phong(ks, mats[bid, SHINY], nx, ny, nz, ex - p0, ey - p1, ez - p2, lx, ly, lz)
         spec_out[i] = spec
         for c in range(3):
-            rgb_out[i, c] = albedo[0, c] * irradiance + spec
+            col0 = mats[bid, COLORS + c]
+            val = col0 + g1 * (mats[bid, COLORS + 3 + c] - col0) + g2 * mats[bid, COLORS + 6 + c]
+            rgb_out[i, c] = min(max(val, 0.0), 1.0) * irradiance + spec
+
+
+@numba.njit(cache=True)
+def trace_shade(dirs, pix, origin, objs, edges, blobs, mats, boxes, bank, spacing, light, ambient, specular,
+                eye2, t_out, ids_out, points_out, normals_out, rgb_out, spec_out, spec2_out, grid_w=0
+                ):  # pragma: no cover - compiled
+    """First hit (:func:`zbuffer`), surface, albedo and shading (:func:`shade`) of every ray
+    ``origin + t dirs[i]`` through pixel ``pix[i]`` (or, ``grid_w > 0``, of a row-major pixel grid).
+
+    ``spec2_out`` receives the specular radiance of the same points towards a second viewpoint ``eye2``
+    (e.g. the other camera of the rig; ignored when ``eye2`` has no element).
+    """
+    zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, False, t_out, ids_out)
+    shade(dirs, origin, t_out, ids_out, objs, mats, bank, spacing, light, ambient, specular, eye2, points_out,
+          normals_out, rgb_out, spec_out, spec2_out)
 
 
 @numba.njit(cache=True)
 def hidden_points(points, pix, origin, objs, edges, blobs, boxes, rel_eps, out):  # pragma: no cover - compiled
     """``out[i]`` = the segment from ``origin`` to ``points[i]`` crosses a surface before the point
     (planes: the point is on the far side; others: a hit with t < 1 - rel_eps), as ``render.visible_from``."""
+    n = points.shape[0]
     ox, oy, oz = origin[0], origin[1], origin[2]
-    pre = _origin_constants(objs, ox, oy, oz)
-    for i in range(points.shape[0]):
-        px, py = pix[i, 0], pix[i, 1]
-        dx, dy, dz = points[i, 0] - ox, points[i, 1] - oy, points[i, 2] - oz
-        dd = dx * dx + dy * dy + dz * dz
-        hidden = False
-        for k in range(objs.shape[0]):
-            o = objs[k]
-            if int(o[TYPE]) == PLANE:
-                side_cam = -pre[k, 0]  # n.o - k
-                side_pt = _dot(o, NRM, points[i, 0], points[i, 1], points[i, 2]) - o[KOFF]
-                sg = 1.0 if side_cam >= 0 else -1.0
-                if side_pt * sg < -rel_eps * abs(side_cam):
-                    hidden = True
-                    break
-                continue
-            if not (px >= boxes[k, 0] and px <= boxes[k, 1] and py >= boxes[k, 2] and py <= boxes[k, 3]):
-                continue
-            if _intersect(objs, pre, edges, blobs, k, dx, dy, dz, dd) < 1 - rel_eps:
-                hidden = True
-                break
-        out[i] = hidden
+    dirs = np.empty((n, 3))
+    for i in range(n):
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = points[i, 0] - ox, points[i, 1] - oy, points[i, 2] - oz
+    t = np.empty(n)
+    ids = np.empty(n, dtype=np.int64)
+    zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, 0, True, t, ids)
+    for i in range(n):
+        out[i] = t[i] < 1 - rel_eps
+    for k in range(objs.shape[0]):
+        if int(objs[k, TYPE]) != PLANE:
+            continue
+        a0, a1, a2, off = objs[k, NRM], objs[k, NRM + 1], objs[k, NRM + 2], objs[k, KOFF]
+        side_cam = a0 * ox + a1 * oy + a2 * oz - off
+        sg = 1.0 if side_cam >= 0 else -1.0
+        lim = -rel_eps * abs(side_cam)
+        for i in range(n):
+            if (a0 * points[i, 0] + a1 * points[i, 1] + a2 * points[i, 2] - off) * sg < lim:
+                out[i] = True
+
+
+@numba.njit(cache=True)
+def edge_mask(ids, normals, crease, out):  # pragma: no cover - compiled
+    """``out[r, c]``: pixel whose object id differs from one of its 8 neighbours (replicated border), or
+    whose normal turns by more than ``1 - cos = crease`` towards a 4-neighbour; ``normals`` :math:`(H W, 3)`
+    (as ``render.edge_pixels``)."""
+    h, w = ids.shape
+    lim = 1 - crease
+    for r in range(h):
+        for c in range(w):
+            out[r, c] = False
+    for r in range(h):
+        for c in range(w):
+            k = ids[r, c]
+            for dr in range(-1, 2):
+                rr = min(max(r + dr, 0), h - 1)
+                for dc in range(-1, 2):
+                    if ids[rr, min(max(c + dc, 0), w - 1)] != k:
+                        out[r, c] = True
+            i = r * w + c
+            if c + 1 < w:
+                j = i + 1
+                if normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2] < lim:
+                    out[r, c] = True
+                    out[r, c + 1] = True
+            if r + 1 < h:
+                j = i + w
+                if normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2] < lim:
+                    out[r, c] = True
+                    out[r + 1, c] = True

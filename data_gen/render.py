@@ -354,7 +354,10 @@ def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.
     return rgb, spec
 
 
-def edge_pixels(ids: torch.Tensor, normals: torch.Tensor | None = None, crease: float = 0.1) -> torch.Tensor:
+EDGE_CREASE = 0.1  # 1 - cos of the normal turn between neighbours that marks a pixel for supersampling
+
+
+def edge_pixels(ids: torch.Tensor, normals: torch.Tensor | None = None, crease: float = EDGE_CREASE) -> torch.Tensor:
     """Bool :math:`(H, W)`: pixels whose object id differs from one of their 8 neighbours, or (with
     ``normals`` :math:`(H, W, 3)`) whose normal turns by more than ``1 - cos = crease`` towards a 4-neighbour
     (cylinder rims, grazing sphere edges)."""
@@ -383,53 +386,74 @@ def _pixel_rays(camera: Camera, x: torch.Tensor, y: torch.Tensor) -> torch.Tenso
     return (d_cam @ torch.as_tensor(camera.R)).to(x.dtype)  # rows R^T d_cam
 
 
-def _kernel_trace(scene: Scene, camera: Camera, packed: dict, dirs: np.ndarray, pix: np.ndarray, spacing: float,
-                  specular: bool, second_eye: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Run :func:`data_gen._kernels.trace_shade` on rays ``dirs (N, 3)`` through pixels ``pix (N, 2)``."""
+def _kernel_trace(scene: Scene, camera: Camera, packed: dict, dirs: np.ndarray, pix: np.ndarray | None,
+                  spacing: float, specular: bool, second_eye: np.ndarray | None = None, grid_w: int = 0
+                  ) -> dict[str, np.ndarray]:
+    """Run :func:`data_gen._kernels.trace_shade` on rays ``dirs (N, 3)`` through pixels ``pix (N, 2)``, or
+    (``grid_w > 0``, ``pix`` None) through a row-major pixel grid of that width."""
     from data_gen._kernels import trace_shade
 
     n = dirs.shape[0]
     out = dict(t=np.empty(n), ids=np.empty(n, dtype=np.int64), points=np.empty((n, 3)), normals=np.empty((n, 3)),
                rgb=np.empty((n, 3)), spec=np.empty(n), spec2=np.zeros(n))
     eye2 = np.zeros(0) if second_eye is None else np.asarray(second_eye, dtype=np.float64).reshape(3)
-    trace_shade(np.ascontiguousarray(dirs, dtype=np.float64), np.ascontiguousarray(pix, dtype=np.float64),
+    trace_shade(np.ascontiguousarray(dirs, dtype=np.float64),
+                np.zeros((0, 2)) if pix is None else np.ascontiguousarray(pix, dtype=np.float64),
                 np.asarray(camera.center, dtype=np.float64), packed["objs"], packed["edges"], packed["blobs"],
                 packed["mats"], packed["boxes"], packed["bank"], float(spacing),
                 np.asarray(scene.light_dir, dtype=np.float64), float(scene.ambient), bool(specular), eye2,
-                out["t"], out["ids"], out["points"], out["normals"], out["rgb"], out["spec"], out["spec2"])
+                out["t"], out["ids"], out["points"], out["normals"], out["rgb"], out["spec"], out["spec2"], grid_w)
     return out
+
+
+def _grid_dirs(camera: Camera) -> np.ndarray:
+    """World directions :math:`(H W, 3)` float64 of the pixel-centre rays (camera-frame z = 1), row-major."""
+    w, h = camera.size
+    if camera.dist is not None:
+        return camera.grid_rays(1, torch.float64).dirs().reshape(-1, 3).numpy()
+    M = camera.R.T @ np.linalg.inv(camera.K)
+    xs = np.arange(w, dtype=np.float64)
+    ys = np.arange(h, dtype=np.float64)
+    dirs = np.empty((h, w, 3))
+    dirs[...] = M[:, 2]
+    dirs += xs[None, :, None] * M[:, 0]
+    dirs += ys[:, None, None] * M[:, 1]
+    return dirs.reshape(-1, 3)
 
 
 def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, dtype: torch.dtype,
                          second_eye: np.ndarray | None = None) -> dict:
     """:func:`render_view` with the compiled kernels (same algorithm, float64 inside)."""
-    from data_gen._kernels import pack_scene
+    from data_gen._kernels import edge_mask, pack_scene
 
     w, h = camera.size
     packed = pack_scene(scene, camera)
-    grid = camera.grid_rays(1, torch.float64)
-    ys, xs = np.meshgrid(grid.ys_np, grid.xs_np, indexing="ij")
-    pix = np.stack([xs.ravel(), ys.ravel()], axis=-1)  # HWx2
     f = float(camera.K[0, 0])
-    out = _kernel_trace(scene, camera, packed, grid.dirs().reshape(-1, 3).numpy(), pix, 1.0 / f, specular,
-                        second_eye)
-    ids = torch.from_numpy(out["ids"]).reshape(h, w)
-    normals = torch.from_numpy(out["normals"]).to(dtype)
+    out = _kernel_trace(scene, camera, packed, _grid_dirs(camera), None, 1.0 / f, specular, second_eye, grid_w=w)
+    ids_np = out["ids"].reshape(h, w)
+    ids = torch.from_numpy(ids_np)
     rgb = out["rgb"]
-    edges = edge_pixels(ids, normals.reshape(h, w, 3)) if s > 1 else torch.zeros_like(ids, dtype=torch.bool)
-    ey, ex = torch.nonzero(edges, as_tuple=True)
-    if ey.numel():
-        offsets = (torch.arange(s, dtype=torch.float64) + 0.5) / s - 0.5
-        oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
-        sx = (ex.double()[:, None] + ox.reshape(1, -1)).reshape(-1)  # (M*s*s,)
-        sy = (ey.double()[:, None] + oy.reshape(1, -1)).reshape(-1)
-        dirs = _pixel_rays(camera, sx, sy).numpy()
-        sub = _kernel_trace(scene, camera, packed, dirs, torch.stack([sx, sy], -1).numpy(), 1.0 / (s * f), specular)
-        rgb[(ey * w + ex).numpy()] = sub["rgb"].reshape(-1, s * s, 3).mean(1)
-    img = torch.from_numpy(rgb).to(dtype).reshape(h, w, 3).permute(2, 0, 1)  # 3xHxW
-    return {"image": img.clamp(0.0, 1.0).contiguous(), "depth": torch.from_numpy(out["t"]).to(dtype).reshape(h, w),
-            "ids": ids, "points": torch.from_numpy(out["points"]).to(dtype), "normals": normals,
-            "specular": torch.from_numpy(out["spec"]).to(dtype).reshape(h, w), "edges": edges,
+    edges_np = np.zeros((h, w), dtype=np.bool_)
+    if s > 1:
+        edge_mask(ids_np, out["normals"], EDGE_CREASE, edges_np)
+    ey, ex = np.nonzero(edges_np)
+    if ey.size:
+        offsets = (np.arange(s, dtype=np.float64) + 0.5) / s - 0.5
+        oy, ox = np.meshgrid(offsets, offsets, indexing="ij")
+        sx = (ex[:, None] + ox.reshape(1, -1)).reshape(-1)  # (M*s*s,)
+        sy = (ey[:, None] + oy.reshape(1, -1)).reshape(-1)
+        if camera.dist is None:
+            M = camera.R.T @ np.linalg.inv(camera.K)
+            dirs = sx[:, None] * M[:, 0] + sy[:, None] * M[:, 1] + M[:, 2]
+        else:
+            dirs = _pixel_rays(camera, torch.from_numpy(sx), torch.from_numpy(sy)).numpy()
+        sub = _kernel_trace(scene, camera, packed, dirs, np.stack([sx, sy], -1), 1.0 / (s * f), specular)
+        rgb[ey * w + ex] = sub["rgb"].reshape(-1, s * s, 3).mean(1)
+    img = torch.from_numpy(rgb.reshape(h, w, 3).transpose(2, 0, 1).clip(0.0, 1.0)).to(dtype)  # 3xHxW
+    return {"image": img.contiguous(), "depth": torch.from_numpy(out["t"]).to(dtype).reshape(h, w),
+            "ids": ids, "points": torch.from_numpy(out["points"]).to(dtype),
+            "normals": torch.from_numpy(out["normals"]).to(dtype),
+            "specular": torch.from_numpy(out["spec"]).to(dtype).reshape(h, w), "edges": torch.from_numpy(edges_np),
             **({} if second_eye is None else {"specular_second": torch.from_numpy(out["spec2"]).to(dtype).reshape(h, w)})}
 
 
