@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 import torch
 
-from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, visible_from
+from data_gen import render as render_module
+from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view
 from data_gen.scene import (
     DIFFICULTY,
     Rig,
@@ -94,7 +95,33 @@ def _gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
 def apply_camera_response(img: torch.Tensor, params: dict, photometric: bool = True, blur: bool = True,
                           noise: bool = True) -> torch.Tensor:
     """Optics and sensor, :math:`(3, H, W)` in/out in [0, 1]: blur; vignetting ``1 - v r^2`` (r = 1 at the
-    corners), gain/bias/gamma; signal-dependent Gaussian noise with std ``noise * sqrt(0.25 + I)``."""
+    corners), gain/bias/gamma; signal-dependent Gaussian noise with std ``noise * sqrt(0.25 + I)``.
+
+    float32 images run one fused numba pass (:func:`data_gen._kernels.camera_response`; its noise is a window
+    of a fixed table of normal samples at an offset drawn from ``noise_seed``); other dtypes (or
+    ``render.USE_KERNELS = False``) the torch reference, with fresh samples from ``noise_seed``.
+    """
+    if img.dtype == torch.float32 and render_module.USE_KERNELS:
+        from data_gen._kernels import NOISE_TABLE_SIZE, camera_response, noise_table
+
+        hwc = np.ascontiguousarray(img.permute(1, 2, 0).numpy())  # HxWx3
+        sigma = params["blur"] if blur else 0.0
+        if sigma >= 0.05:
+            r = max(1, int(math.ceil(2.5 * sigma)))
+            hwc = cv2.GaussianBlur(hwc, (2 * r + 1, 2 * r + 1), sigmaX=sigma, sigmaY=sigma,
+                                   borderType=cv2.BORDER_REFLECT_101)
+        amp = params["noise"] if noise else 0.0
+        out = np.empty(tuple(img.shape), dtype=np.float32)
+        camera_response(hwc, out, np.asarray(params["gain"], dtype=np.float64).reshape(3), float(params["bias"]),
+                        float(params["gamma"]), float(params.get("vignetting", 0.0)), bool(photometric), float(amp),
+                        noise_table(), int(params["noise_seed"] % NOISE_TABLE_SIZE))
+        return torch.from_numpy(out)
+    return _camera_response_torch(img, params, photometric, blur, noise)
+
+
+def _camera_response_torch(img: torch.Tensor, params: dict, photometric: bool, blur: bool, noise: bool
+                           ) -> torch.Tensor:
+    """Reference of :func:`apply_camera_response` in torch."""
     if blur:
         img = _gaussian_blur(img, params["blur"])
     if photometric:
@@ -124,54 +151,62 @@ def calibration_of(rig: Rig, max_disp: int):
 DISP_TOLERANCE = 1e-3  # relative slack on max_disp before ground truth is marked invalid
 
 
+def _geometry(view: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict | None]:
+    """float64 points :math:`(N, 3)`, int64 ids, float64 depth :math:`(N,)` of a rendered view (the kernels'
+    own arrays when present, else the tensors) and the view's packed scene (or None)."""
+    raw = view.get("_raw")
+    if raw is not None:
+        return raw["points"], raw["ids"], raw["t"], raw["packed"]
+    return (view["points"].double().numpy(), view["ids"].reshape(-1).numpy().astype(np.int64),
+            view["depth"].reshape(-1).double().numpy(), None)
+
+
 def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_right: bool = False
                   ) -> dict[str, torch.Tensor]:
-    """Disparities, correspondences, occlusion and specular masks from the centre-ray geometry."""
+    """Disparities, correspondences, occlusion and specular masks from the centre-ray geometry (float64)."""
+    from data_gen.render import project_points, visible_np
+
     cam_l, cam_r = rig.left, rig.right
     w, h = cam_l.size
-    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
-                            indexing="ij")
-    ids_l = left["ids"].reshape(-1)
+    xs = np.tile(np.arange(w, dtype=np.float64), h)
+    pts_l, ids_l, depth_l, _ = _geometry(left)
+    pts_r, ids_r, depth_r, packed_r = _geometry(right)
     hit_l = ids_l >= 0
-    pts_l = left["points"].double()
-    corr, z_r = cam_r.project(pts_l)  # HWx2 right pixel of each left pixel's surface point
-    disp = xs.reshape(-1) - corr[:, 0]
-    visible = visible_from(scene, cam_r, left["points"], projected=(corr.float(), z_r.float())) & hit_l
+    corr, z_r = project_points(cam_r, pts_l)  # HWx2 right pixel of each left pixel's surface point
+    disp = xs - corr[:, 0]
+    visible = visible_np(scene, cam_r, pts_l, corr, z_r, packed_r) & hit_l
     # representable: in front of both cameras, depth disparity f B / z within the range in both (the scene
     # sampler guarantees it; this only guards hand-built scenes and float round-off at the bound)
     limit = scene.max_disp * (1 + DISP_TOLERANCE) if scene.max_disp > 0 else math.inf
-    depth_l = left["depth"].reshape(-1).double()
-    depth_r = right["depth"].reshape(-1).double()
-    valid = hit_l & (z_r > 0) & (cam_l.K[0, 0] * rig.baseline <= limit * depth_l) & (
-        cam_r.K[0, 0] * rig.baseline <= limit * z_r)
-    if rig.rectified:
-        valid &= disp > 0
-    # disparity of the right view, right-referenced: x_left = x_right + d_right
-    ids_r = right["ids"].reshape(-1)
-    corr_l, z_l = cam_l.project(right["points"].double())
-    disp_r = corr_l[:, 0] - xs.reshape(-1)
-    valid_r = (ids_r >= 0) & (z_l > 0) & (cam_r.K[0, 0] * rig.baseline <= limit * depth_r) & (
-        cam_l.K[0, 0] * rig.baseline <= limit * z_l)
-    if rig.rectified:
-        valid_r &= disp_r > 0
+    fb_l, fb_r = cam_l.K[0, 0] * rig.baseline, cam_r.K[0, 0] * rig.baseline
+    with np.errstate(invalid="ignore"):
+        valid = hit_l & (z_r > 0) & (fb_l <= limit * depth_l) & (fb_r <= limit * z_r)
+        if rig.rectified:
+            valid &= disp > 0
+        # disparity of the right view, right-referenced: x_left = x_right + d_right
+        corr_l, z_l = project_points(cam_l, pts_r)
+        disp_r = corr_l[:, 0] - xs
+        valid_r = (ids_r >= 0) & (z_l > 0) & (fb_r <= limit * depth_r) & (fb_l <= limit * z_l)
+        if rig.rectified:
+            valid_r &= disp_r > 0
     # specular mask: shiny in the left view, or at the same surface point seen from the right camera
-    spec_r_at_l = left["specular_second"].reshape(-1)
-    specular = (left["specular"].reshape(-1) > SPECULAR_MASK_THRESHOLD) | (spec_r_at_l > SPECULAR_MASK_THRESHOLD)
+    specular = ((left["specular"].reshape(-1) > SPECULAR_MASK_THRESHOLD)
+                | (left["specular_second"].reshape(-1) > SPECULAR_MASK_THRESHOLD)).numpy()
 
-    def img(x, dtype=torch.float32):
-        return x.reshape(1, h, w).to(dtype)
+    def img(x: np.ndarray, dtype=np.float32) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(x.reshape(1, h, w), dtype=dtype))
 
-    zero = torch.zeros((), dtype=torch.float64)
     extra = {}
     if occlusion_right:  # right pixels whose surface point the left camera does not see
-        seen_l = visible_from(scene, cam_l, right["points"], projected=(corr_l.float(), z_l.float()))
-        extra["occlusion_right"] = img(~seen_l & valid_r, torch.bool)
+        seen_l = visible_np(scene, cam_l, pts_r, corr_l, z_l)
+        extra["occlusion_right"] = img(~seen_l & valid_r, np.bool_)
     return extra | dict(
-        disparity=img(torch.where(valid, disp, zero)), valid=img(valid, torch.bool),
-        disparity_right=img(torch.where(valid_r, disp_r, zero)), valid_right=img(valid_r, torch.bool),
-        occlusion=img(~visible & valid, torch.bool), depth=img(torch.where(hit_l, left["depth"].reshape(-1).double(), zero)),
-        specular=img(specular & hit_l, torch.bool),
-        correspondence=torch.where(valid[:, None], corr, zero).T.reshape(2, h, w).float(),
+        disparity=img(np.where(valid, disp, 0.0)), valid=img(valid, np.bool_),
+        disparity_right=img(np.where(valid_r, disp_r, 0.0)), valid_right=img(valid_r, np.bool_),
+        occlusion=img(~visible & valid, np.bool_), depth=img(np.where(hit_l, depth_l, 0.0)),
+        specular=img(specular & hit_l, np.bool_),
+        correspondence=torch.from_numpy(np.ascontiguousarray(
+            np.where(valid[:, None], corr, 0.0).T.reshape(2, h, w), dtype=np.float32)),
     )
 
 

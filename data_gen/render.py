@@ -239,6 +239,32 @@ def albedo_of_hits(scene: Scene, hits: RayHits, dirs: torch.Tensor, spacing: flo
     return albedo
 
 
+def project_points(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`Camera.project` of float64 world points :math:`(N, 3)` (numba): pixels :math:`(N, 2)`, depths :math:`(N,)`."""
+    from data_gen._kernels import project
+
+    n = points.shape[0]
+    pix, z = np.empty((n, 2)), np.empty(n)
+    dist = np.zeros(5) if camera.dist is None else np.asarray(camera.dist, dtype=np.float64)
+    project(np.ascontiguousarray(points, dtype=np.float64), camera.R, camera.t, camera.K, dist, pix, z)
+    return pix, z
+
+
+def visible_np(scene: Scene, camera: Camera, points: np.ndarray, pix: np.ndarray, z: np.ndarray,
+               packed: dict | None = None, rel_eps: float = 1e-4) -> np.ndarray:
+    """:func:`visible_from` on float64 numpy points :math:`(N, 3)` with their projection ``pix`` :math:`(N, 2)`,
+    ``z`` :math:`(N,)` into ``camera`` (compiled); ``packed``: ``pack_scene(scene, camera)`` if at hand."""
+    from data_gen._kernels import hidden_points, pack_scene
+
+    w, h = camera.size
+    inside = (z > 0) & (pix[:, 0] >= -0.5) & (pix[:, 0] <= w - 0.5) & (pix[:, 1] >= -0.5) & (pix[:, 1] <= h - 0.5)
+    packed = pack_scene(scene, camera) if packed is None else packed
+    hidden = np.empty(points.shape[0], dtype=np.bool_)
+    hidden_points(np.ascontiguousarray(points), np.ascontiguousarray(pix), np.asarray(camera.center, dtype=np.float64),
+                  packed["objs"], packed["edges"], packed["blobs"], packed["boxes"], float(rel_eps), hidden)
+    return inside & ~hidden
+
+
 def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: float = 1e-4,
                  projected: tuple[torch.Tensor, torch.Tensor] | None = None, compiled: bool | None = None
                  ) -> torch.Tensor:
@@ -250,19 +276,17 @@ def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: fl
     ``projected``: ``camera.project(points)`` if already computed; ``compiled``: numba kernel (default
     ``USE_KERNELS``) or torch reference.
     """
+    if USE_KERNELS if compiled is None else compiled:
+        if projected is None:
+            pix_np, z_np = project_points(camera, points.double().numpy())
+        else:
+            pix_np, z_np = (np.ascontiguousarray(a.double().numpy()) for a in projected)
+        return torch.from_numpy(visible_np(scene, camera, np.ascontiguousarray(points.double().numpy()), pix_np,
+                                           z_np, rel_eps=rel_eps))
     pix, z = camera.project(points) if projected is None else projected
     w, h = camera.size
     inside = (z > 0) & (pix[:, 0] >= -0.5) & (pix[:, 0] <= w - 0.5) & (pix[:, 1] >= -0.5) & (pix[:, 1] <= h - 0.5)
     centre = camera.center
-    if USE_KERNELS if compiled is None else compiled:
-        from data_gen._kernels import hidden_points, pack_scene
-
-        packed = pack_scene(scene, camera)
-        hidden = np.empty(points.shape[0], dtype=np.bool_)
-        hidden_points(np.ascontiguousarray(points.double().numpy()), np.ascontiguousarray(pix.double().numpy()),
-                      np.asarray(centre, dtype=np.float64), packed["objs"], packed["edges"], packed["blobs"],
-                      packed["boxes"], float(rel_eps), hidden)
-        return inside & ~torch.from_numpy(hidden)
     hidden = torch.zeros(points.shape[0], dtype=torch.bool)
     ys_sorted, order = torch.sort(pix[:, 1].contiguous())  # objects are tested on the rows they cover
     xs_sorted = pix[order, 0]
@@ -411,14 +435,9 @@ def _grid_dirs(camera: Camera) -> np.ndarray:
     w, h = camera.size
     if camera.dist is not None:
         return camera.grid_rays(1, torch.float64).dirs().reshape(-1, 3).numpy()
-    M = camera.R.T @ np.linalg.inv(camera.K)
-    xs = np.arange(w, dtype=np.float64)
-    ys = np.arange(h, dtype=np.float64)
-    dirs = np.empty((h, w, 3))
-    dirs[...] = M[:, 2]
-    dirs += xs[None, :, None] * M[:, 0]
-    dirs += ys[:, None, None] * M[:, 1]
-    return dirs.reshape(-1, 3)
+    from data_gen._kernels import grid_dirs
+
+    return grid_dirs(camera.R.T @ np.linalg.inv(camera.K), h, w)
 
 
 def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, dtype: torch.dtype,
@@ -454,6 +473,7 @@ def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, d
             "ids": ids, "points": torch.from_numpy(out["points"]).to(dtype),
             "normals": torch.from_numpy(out["normals"]).to(dtype),
             "specular": torch.from_numpy(out["spec"]).to(dtype).reshape(h, w), "edges": torch.from_numpy(edges_np),
+            "_raw": dict(points=out["points"], ids=out["ids"], t=out["t"], packed=packed),
             **({} if second_eye is None else {"specular_second": torch.from_numpy(out["spec2"]).to(dtype).reshape(h, w)})}
 
 
@@ -475,7 +495,8 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     :math:`(H W, 3)` (world frame, centre rays), ``specular`` :math:`(H, W)` specular radiance at the centre
     rays, ``edges`` :math:`(H, W)` bool (the supersampled pixels: object boundaries and normal creases), and
     with ``second_eye`` :math:`(3,)` ``specular_second`` :math:`(H, W)`: the specular radiance of the same
-    surface points towards that viewpoint (the other camera), for the view-dependence mask.
+    surface points towards that viewpoint (the other camera), for the view-dependence mask. The compiled path
+    also returns ``_raw`` (float64 numpy points, ids, depths and the packed scene, for the ground truth).
     """
     s = int(supersample)
     if s < 1:
