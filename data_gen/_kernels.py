@@ -126,6 +126,10 @@ def zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, skip_planes, t
         t_out[i] = np.inf
         ids_out[i] = -1
     h = n // grid_w if grid_w > 0 else 1
+    if grid_w <= 0:  # bucket the rays by pixel row (counting sort) so that objects visit only their rows
+        order, row_start, y_base, n_rows = _row_buckets(pix)
+    else:
+        order, row_start, y_base, n_rows = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), 0.0, 0
     for k in range(objs.shape[0]):
         typ = int(objs[k, TYPE])
         if skip_planes and typ == PLANE:
@@ -162,12 +166,16 @@ def zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, skip_planes, t
                 continue
             n_seg, seg_len = r1 - r0 + 1, c1 - c0 + 1
         else:
-            r0 = c0 = 0
-            n_seg, seg_len = 1, n
+            b0 = 0 if not y0 > y_base else min(int(y0 - y_base), n_rows - 1)
+            b1 = n_rows - 1 if not y1 < y_base + n_rows else max(int(y1 - y_base), 0)
+            r0, c0 = row_start[b0], 0
+            n_seg, seg_len = 1, row_start[b1 + 1] - r0
         for sgi in range(n_seg):
-            start = (r0 + sgi) * grid_w + c0 if grid_w > 0 else 0
-            for i in range(start, start + seg_len):
+            start = (r0 + sgi) * grid_w + c0 if grid_w > 0 else r0
+            for j in range(start, start + seg_len):
+                i = j
                 if grid_w <= 0:
+                    i = order[j]
                     px, py = pix[i, 0], pix[i, 1]
                     if not (px >= x0 and px <= x1 and py >= y0 and py <= y1):
                         continue
@@ -246,6 +254,41 @@ def zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, skip_planes, t
                             continue
                 t_out[i] = t
                 ids_out[i] = k
+
+
+@numba.njit(cache=True)
+def _row_buckets(pix):  # pragma: no cover - compiled
+    """Rays sorted by pixel row: ``order`` (N,), ``row_start`` (R + 1,) (rays of bucket b are
+    ``order[row_start[b]:row_start[b + 1]]``), ``y_base`` and R; bucket b holds ``y_base + b <= y < y_base + b + 1``
+    (rays beyond +-1e7 or NaN go to the first / last bucket)."""
+    n = pix.shape[0]
+    lo, hi = np.inf, -np.inf
+    for i in range(n):
+        y = pix[i, 1]
+        if abs(y) < 1e7:
+            lo = min(lo, y)
+            hi = max(hi, y)
+    if not lo <= hi:
+        lo = hi = 0.0
+    y_base = math.floor(lo)
+    n_rows = int(math.floor(hi) - y_base) + 1
+    bucket = np.empty(n, dtype=np.int64)
+    row_start = np.zeros(n_rows + 1, dtype=np.int64)
+    for i in range(n):
+        y = pix[i, 1]
+        b = 0
+        if y > y_base:
+            b = min(int(y - y_base), n_rows - 1)
+        bucket[i] = b
+        row_start[b + 1] += 1
+    for b in range(n_rows):
+        row_start[b + 1] += row_start[b]
+    fill = row_start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[fill[bucket[i]]] = i
+        fill[bucket[i]] += 1
+    return order, row_start, float(y_base), n_rows
 
 
 @numba.njit(cache=True)
@@ -476,18 +519,21 @@ def edge_mask(ids, normals, crease, out):  # pragma: no cover - compiled
     for r in range(h):
         for c in range(w):
             k = ids[r, c]
-            for dr in range(-1, 2):
-                rr = min(max(r + dr, 0), h - 1)
-                for dc in range(-1, 2):
-                    if ids[rr, min(max(c + dc, 0), w - 1)] != k:
-                        out[r, c] = True
             i = r * w + c
+            # the 8-neighbour relation is symmetric: compare with the right and lower neighbours, mark both
             if c + 1 < w:
+                if ids[r, c + 1] != k:
+                    out[r, c] = True
+                    out[r, c + 1] = True
                 j = i + 1
                 if normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2] < lim:
                     out[r, c] = True
                     out[r, c + 1] = True
             if r + 1 < h:
+                for dc in range(-1, 2):
+                    if 0 <= c + dc < w and ids[r + 1, c + dc] != k:
+                        out[r, c] = True
+                        out[r + 1, c + dc] = True
                 j = i + w
                 if normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2] < lim:
                     out[r, c] = True
@@ -578,3 +624,34 @@ def project(points, R, t, K, dist, pix_out, z_out):  # pragma: no cover - compil
         pix_out[i, 0] = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
         pix_out[i, 1] = K[1, 1] * yd + K[1, 2]
         z_out[i] = zc
+
+
+@numba.njit(cache=True)
+def ground_truth_maps(w, h, ids_l, depth_l, corr, z_r, hidden_l, ids_r, depth_r, corr_l, z_l, spec_l, spec2_l,
+                      fb_l, fb_r, limit, rectified, spec_threshold, disp, valid, disp_r, valid_r, occlusion, depth,
+                      specular, correspondence):  # pragma: no cover - compiled
+    """Per-pixel ground truth of ``pair._ground_truth`` from the projections of each view's surface points
+    into the other camera (``corr``, ``z_r``: left points in the right camera; ``corr_l``, ``z_l``: right points
+    in the left camera) and the hidden flags of the left points seen from the right camera."""
+    for i in range(h * w):
+        x = float(i % w)
+        hit = ids_l[i] >= 0
+        d = x - corr[i, 0]
+        ok = hit and z_r[i] > 0 and fb_l <= limit * depth_l[i] and fb_r <= limit * z_r[i]
+        if rectified:
+            ok = ok and d > 0
+        valid[i] = ok
+        disp[i] = d if ok else 0.0
+        correspondence[0, i] = corr[i, 0] if ok else 0.0
+        correspondence[1, i] = corr[i, 1] if ok else 0.0
+        inside = (z_r[i] > 0 and corr[i, 0] >= -0.5 and corr[i, 0] <= w - 0.5 and corr[i, 1] >= -0.5
+                  and corr[i, 1] <= h - 0.5)
+        occlusion[i] = ok and not (inside and not hidden_l[i])
+        depth[i] = depth_l[i] if hit else 0.0
+        specular[i] = hit and (spec_l[i] > spec_threshold or spec2_l[i] > spec_threshold)
+        dr = corr_l[i, 0] - x  # right-referenced: x_left = x_right + d_right
+        ok = ids_r[i] >= 0 and z_l[i] > 0 and fb_r <= limit * depth_r[i] and fb_l <= limit * z_l[i]
+        if rectified:
+            ok = ok and dr > 0
+        valid_r[i] = ok
+        disp_r[i] = dr if ok else 0.0

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from data_gen import render as render_module
-from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view
+from data_gen.render import SPECULAR_MASK_THRESHOLD, render_view, render_view_arrays
 from data_gen.scene import (
     DIFFICULTY,
     Rig,
@@ -102,21 +102,27 @@ def apply_camera_response(img: torch.Tensor, params: dict, photometric: bool = T
     ``render.USE_KERNELS = False``) the torch reference, with fresh samples from ``noise_seed``.
     """
     if img.dtype == torch.float32 and render_module.USE_KERNELS:
-        from data_gen._kernels import NOISE_TABLE_SIZE, camera_response, noise_table
-
-        hwc = np.ascontiguousarray(img.permute(1, 2, 0).numpy())  # HxWx3
-        sigma = params["blur"] if blur else 0.0
-        if sigma >= 0.05:
-            r = max(1, int(math.ceil(2.5 * sigma)))
-            hwc = cv2.GaussianBlur(hwc, (2 * r + 1, 2 * r + 1), sigmaX=sigma, sigmaY=sigma,
-                                   borderType=cv2.BORDER_REFLECT_101)
-        amp = params["noise"] if noise else 0.0
-        out = np.empty(tuple(img.shape), dtype=np.float32)
-        camera_response(hwc, out, np.asarray(params["gain"], dtype=np.float64).reshape(3), float(params["bias"]),
-                        float(params["gamma"]), float(params.get("vignetting", 0.0)), bool(photometric), float(amp),
-                        noise_table(), int(params["noise_seed"] % NOISE_TABLE_SIZE))
-        return torch.from_numpy(out)
+        return _camera_response_hwc(np.ascontiguousarray(img.permute(1, 2, 0).numpy()), params, photometric, blur,
+                                    noise)
     return _camera_response_torch(img, params, photometric, blur, noise)
+
+
+def _camera_response_hwc(hwc: np.ndarray, params: dict, photometric: bool = True, blur: bool = True,
+                         noise: bool = True) -> torch.Tensor:
+    """:func:`apply_camera_response` of a float32 :math:`(H, W, 3)` image; returns :math:`(3, H, W)`."""
+    from data_gen._kernels import NOISE_TABLE_SIZE, camera_response, noise_table
+
+    sigma = params["blur"] if blur else 0.0
+    if sigma >= 0.05:
+        r = max(1, int(math.ceil(2.5 * sigma)))
+        hwc = cv2.GaussianBlur(hwc, (2 * r + 1, 2 * r + 1), sigmaX=sigma, sigmaY=sigma,
+                               borderType=cv2.BORDER_REFLECT_101)
+    amp = params["noise"] if noise else 0.0
+    out = np.empty((3, hwc.shape[0], hwc.shape[1]), dtype=np.float32)
+    camera_response(hwc, out, np.asarray(params["gain"], dtype=np.float64).reshape(3), float(params["bias"]),
+                    float(params["gamma"]), float(params.get("vignetting", 0.0)), bool(photometric), float(amp),
+                    noise_table(), int(params["noise_seed"] % NOISE_TABLE_SIZE))
+    return torch.from_numpy(out)
 
 
 def _camera_response_torch(img: torch.Tensor, params: dict, photometric: bool, blur: bool, noise: bool
@@ -151,63 +157,57 @@ def calibration_of(rig: Rig, max_disp: int):
 DISP_TOLERANCE = 1e-3  # relative slack on max_disp before ground truth is marked invalid
 
 
-def _geometry(view: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict | None]:
-    """float64 points :math:`(N, 3)`, int64 ids, float64 depth :math:`(N,)` of a rendered view (the kernels'
-    own arrays when present, else the tensors) and the view's packed scene (or None)."""
-    raw = view.get("_raw")
-    if raw is not None:
-        return raw["points"], raw["ids"], raw["t"], raw["packed"]
-    return (view["points"].double().numpy(), view["ids"].reshape(-1).numpy().astype(np.int64),
-            view["depth"].reshape(-1).double().numpy(), None)
+def _view_arrays(view: dict) -> dict[str, np.ndarray]:
+    """float64 ``points`` :math:`(N, 3)`, int64 ``ids``, float64 ``t`` (depth), ``spec``, ``spec2`` :math:`(N,)`
+    of a view: the arrays of :func:`render_view_arrays` as they are, or the tensors of :func:`render_view`."""
+    if "image" not in view:
+        return view
+
+    def f64(x: torch.Tensor) -> np.ndarray:
+        return np.ascontiguousarray(x.reshape(-1).double().numpy())
+
+    out = dict(points=np.ascontiguousarray(view["points"].double().numpy()), t=f64(view["depth"]),
+               ids=np.ascontiguousarray(view["ids"].reshape(-1).numpy().astype(np.int64)), spec=f64(view["specular"]))
+    out["spec2"] = f64(view["specular_second"]) if "specular_second" in view else np.zeros_like(out["spec"])
+    return out
 
 
 def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_right: bool = False
                   ) -> dict[str, torch.Tensor]:
-    """Disparities, correspondences, occlusion and specular masks from the centre-ray geometry (float64)."""
+    """Disparities, correspondences, occlusion and specular masks from the centre-ray geometry (float64
+    inside; :func:`data_gen._kernels.ground_truth_maps`). ``left``, ``right``: :func:`render_view` dicts or
+    :func:`render_view_arrays` arrays (the left one rendered with ``second_eye`` = the right camera centre)."""
+    from data_gen._kernels import ground_truth_maps, hidden_points, pack_scene
     from data_gen.render import project_points, visible_np
 
     cam_l, cam_r = rig.left, rig.right
     w, h = cam_l.size
-    xs = np.tile(np.arange(w, dtype=np.float64), h)
-    pts_l, ids_l, depth_l, _ = _geometry(left)
-    pts_r, ids_r, depth_r, packed_r = _geometry(right)
-    hit_l = ids_l >= 0
+    n = h * w
+    left, right = _view_arrays(left), _view_arrays(right)
+    pts_l, ids_l, depth_l = left["points"], left["ids"], left["t"]
+    pts_r, ids_r, depth_r, packed_r = right["points"], right["ids"], right["t"], right.get("packed")
     corr, z_r = project_points(cam_r, pts_l)  # HWx2 right pixel of each left pixel's surface point
-    disp = xs - corr[:, 0]
-    visible = visible_np(scene, cam_r, pts_l, corr, z_r, packed_r) & hit_l
+    corr_l, z_l = project_points(cam_l, pts_r)
+    packed_r = pack_scene(scene, cam_r) if packed_r is None else packed_r
+    hidden = np.empty(n, dtype=np.bool_)
+    hidden_points(pts_l, corr, np.asarray(cam_r.center, dtype=np.float64), packed_r["objs"], packed_r["edges"],
+                  packed_r["blobs"], packed_r["boxes"], 1e-4, hidden)
     # representable: in front of both cameras, depth disparity f B / z within the range in both (the scene
     # sampler guarantees it; this only guards hand-built scenes and float round-off at the bound)
     limit = scene.max_disp * (1 + DISP_TOLERANCE) if scene.max_disp > 0 else math.inf
-    fb_l, fb_r = cam_l.K[0, 0] * rig.baseline, cam_r.K[0, 0] * rig.baseline
-    with np.errstate(invalid="ignore"):
-        valid = hit_l & (z_r > 0) & (fb_l <= limit * depth_l) & (fb_r <= limit * z_r)
-        if rig.rectified:
-            valid &= disp > 0
-        # disparity of the right view, right-referenced: x_left = x_right + d_right
-        corr_l, z_l = project_points(cam_l, pts_r)
-        disp_r = corr_l[:, 0] - xs
-        valid_r = (ids_r >= 0) & (z_l > 0) & (fb_r <= limit * depth_r) & (fb_l <= limit * z_l)
-        if rig.rectified:
-            valid_r &= disp_r > 0
-    # specular mask: shiny in the left view, or at the same surface point seen from the right camera
-    specular = ((left["specular"].reshape(-1) > SPECULAR_MASK_THRESHOLD)
-                | (left["specular_second"].reshape(-1) > SPECULAR_MASK_THRESHOLD)).numpy()
-
-    def img(x: np.ndarray, dtype=np.float32) -> torch.Tensor:
-        return torch.from_numpy(np.ascontiguousarray(x.reshape(1, h, w), dtype=dtype))
-
-    extra = {}
+    maps = dict(disparity=np.empty(n, np.float32), valid=np.empty(n, np.bool_),
+                disparity_right=np.empty(n, np.float32), valid_right=np.empty(n, np.bool_),
+                occlusion=np.empty(n, np.bool_), depth=np.empty(n, np.float32), specular=np.empty(n, np.bool_))
+    correspondence = np.empty((2, n), np.float32)
+    ground_truth_maps(w, h, ids_l, depth_l, corr, z_r, hidden, ids_r, depth_r, corr_l, z_l, left["spec"], left["spec2"],
+                      cam_l.K[0, 0] * rig.baseline, cam_r.K[0, 0] * rig.baseline, float(limit), bool(rig.rectified),
+                      SPECULAR_MASK_THRESHOLD, *maps.values(), correspondence)
+    out = {k: torch.from_numpy(v.reshape(1, h, w)) for k, v in maps.items()}
+    out["correspondence"] = torch.from_numpy(correspondence.reshape(2, h, w))
     if occlusion_right:  # right pixels whose surface point the left camera does not see
         seen_l = visible_np(scene, cam_l, pts_r, corr_l, z_l)
-        extra["occlusion_right"] = img(~seen_l & valid_r, np.bool_)
-    return extra | dict(
-        disparity=img(np.where(valid, disp, 0.0)), valid=img(valid, np.bool_),
-        disparity_right=img(np.where(valid_r, disp_r, 0.0)), valid_right=img(valid_r, np.bool_),
-        occlusion=img(~visible & valid, np.bool_), depth=img(np.where(hit_l, depth_l, 0.0)),
-        specular=img(specular & hit_l, np.bool_),
-        correspondence=torch.from_numpy(np.ascontiguousarray(
-            np.where(valid[:, None], corr, 0.0).T.reshape(2, h, w), dtype=np.float32)),
-    )
+        out["occlusion_right"] = torch.from_numpy((~seen_l & maps["valid_right"]).reshape(1, h, w))
+    return out
 
 
 def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, width: int = 512,
@@ -255,12 +255,17 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)
     level = DIFFICULTY[difficulty]
     response = [_photometric(rng, level), _photometric(rng, level)]
-    views = [render_view(scene, rig.left, supersample, specular=specular, second_eye=rig.right.center),
-             render_view(scene, rig.right, supersample, specular=specular)]
+    if render_module.USE_KERNELS:
+        views = [render_view_arrays(scene, rig.left, supersample, specular, second_eye=rig.right.center),
+                 render_view_arrays(scene, rig.right, supersample, specular)]
+        images = [_camera_response_hwc(v["rgb"], r, photometric, blur, noise) for v, r in zip(views, response)]
+    else:
+        views = [render_view(scene, rig.left, supersample, specular=specular, second_eye=rig.right.center),
+                 render_view(scene, rig.right, supersample, specular=specular)]
+        images = [apply_camera_response(v["image"], r, photometric, blur, noise) for v, r in zip(views, response)]
     gt = _ground_truth(scene, rig, views[0], views[1], occlusion_right)
     if not specular:
         gt["specular"].zero_()
-    images = [apply_camera_response(v["image"], r, photometric, blur, noise) for v, r in zip(views, response)]
     kind = "rect" if rectified else "unrect"
     out = dict(left=images[0], right=images[1], calib=calibration_of(rig, max_disp), max_disp=max_disp,
                name=f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}", difficulty=difficulty, scene=scene, rig=rig)

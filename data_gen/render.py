@@ -440,22 +440,24 @@ def _grid_dirs(camera: Camera) -> np.ndarray:
     return grid_dirs(camera.R.T @ np.linalg.inv(camera.K), h, w)
 
 
-def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, dtype: torch.dtype,
-                         second_eye: np.ndarray | None = None) -> dict:
-    """:func:`render_view` with the compiled kernels (same algorithm, float64 inside)."""
+def render_view_arrays(scene: Scene, camera: Camera, supersample: int = 2, specular: bool = True,
+                       second_eye: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The compiled :func:`render_view` as numpy arrays (no torch conversions): ``rgb`` :math:`(H, W, 3)`
+    float32 in [0, 1]; float64 ``t`` (depth), ``points``, ``normals`` :math:`(H W, 3)`, ``spec``, ``spec2``;
+    int64 ``ids`` :math:`(H W,)`; bool ``edges`` :math:`(H, W)`; ``packed`` (the scene packed for this camera).
+    """
     from data_gen._kernels import edge_mask, pack_scene
 
+    s = int(supersample)
     w, h = camera.size
     packed = pack_scene(scene, camera)
     f = float(camera.K[0, 0])
     out = _kernel_trace(scene, camera, packed, _grid_dirs(camera), None, 1.0 / f, specular, second_eye, grid_w=w)
-    ids_np = out["ids"].reshape(h, w)
-    ids = torch.from_numpy(ids_np)
     rgb = out["rgb"]
-    edges_np = np.zeros((h, w), dtype=np.bool_)
+    edges = np.zeros((h, w), dtype=np.bool_)
     if s > 1:
-        edge_mask(ids_np, out["normals"], EDGE_CREASE, edges_np)
-    ey, ex = np.nonzero(edges_np)
+        edge_mask(out["ids"].reshape(h, w), out["normals"], EDGE_CREASE, edges)
+    ey, ex = np.nonzero(edges)
     if ey.size:
         offsets = (np.arange(s, dtype=np.float64) + 0.5) / s - 0.5
         oy, ox = np.meshgrid(offsets, offsets, indexing="ij")
@@ -468,13 +470,22 @@ def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, d
             dirs = _pixel_rays(camera, torch.from_numpy(sx), torch.from_numpy(sy)).numpy()
         sub = _kernel_trace(scene, camera, packed, dirs, np.stack([sx, sy], -1), 1.0 / (s * f), specular)
         rgb[ey * w + ex] = sub["rgb"].reshape(-1, s * s, 3).mean(1)
-    img = torch.from_numpy(rgb.reshape(h, w, 3).transpose(2, 0, 1).clip(0.0, 1.0)).to(dtype)  # 3xHxW
-    return {"image": img.contiguous(), "depth": torch.from_numpy(out["t"]).to(dtype).reshape(h, w),
-            "ids": ids, "points": torch.from_numpy(out["points"]).to(dtype),
-            "normals": torch.from_numpy(out["normals"]).to(dtype),
-            "specular": torch.from_numpy(out["spec"]).to(dtype).reshape(h, w), "edges": torch.from_numpy(edges_np),
-            "_raw": dict(points=out["points"], ids=out["ids"], t=out["t"], packed=packed),
-            **({} if second_eye is None else {"specular_second": torch.from_numpy(out["spec2"]).to(dtype).reshape(h, w)})}
+    out["rgb"] = np.clip(rgb, 0.0, 1.0).astype(np.float32).reshape(h, w, 3)
+    out.update(edges=edges, packed=packed)
+    return out
+
+
+def _render_view_kernels(scene: Scene, camera: Camera, s: int, specular: bool, dtype: torch.dtype,
+                         second_eye: np.ndarray | None = None) -> dict:
+    """:func:`render_view` with the compiled kernels (same algorithm, float64 inside)."""
+    a = render_view_arrays(scene, camera, s, specular, second_eye)
+    w, h = camera.size
+    img = torch.from_numpy(a["rgb"].transpose(2, 0, 1)).to(dtype)  # 3xHxW
+    return {"image": img.contiguous(), "depth": torch.from_numpy(a["t"]).to(dtype).reshape(h, w),
+            "ids": torch.from_numpy(a["ids"].reshape(h, w)), "points": torch.from_numpy(a["points"]).to(dtype),
+            "normals": torch.from_numpy(a["normals"]).to(dtype),
+            "specular": torch.from_numpy(a["spec"]).to(dtype).reshape(h, w), "edges": torch.from_numpy(a["edges"]),
+            **({} if second_eye is None else {"specular_second": torch.from_numpy(a["spec2"]).to(dtype).reshape(h, w)})}
 
 
 def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bool = True,
@@ -495,8 +506,8 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     :math:`(H W, 3)` (world frame, centre rays), ``specular`` :math:`(H, W)` specular radiance at the centre
     rays, ``edges`` :math:`(H, W)` bool (the supersampled pixels: object boundaries and normal creases), and
     with ``second_eye`` :math:`(3,)` ``specular_second`` :math:`(H, W)`: the specular radiance of the same
-    surface points towards that viewpoint (the other camera), for the view-dependence mask. The compiled path
-    also returns ``_raw`` (float64 numpy points, ids, depths and the packed scene, for the ground truth).
+    surface points towards that viewpoint (the other camera), for the view-dependence mask.
+    (:func:`render_view_arrays` returns the compiled path's numpy arrays without torch conversions.)
     """
     s = int(supersample)
     if s < 1:
