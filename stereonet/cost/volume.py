@@ -154,7 +154,7 @@ def fill_out_of_image(vol: torch.Tensor, fill: float | None = None) -> torch.Ten
     return vol.masked_fill_(bad, fill)
 
 
-def _use_numba(left: torch.Tensor, right: torch.Tensor, backend: str) -> bool:
+def use_numba(left: torch.Tensor, right: torch.Tensor, backend: str) -> bool:
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     if backend == "numba":
@@ -163,76 +163,112 @@ def _use_numba(left: torch.Tensor, right: torch.Tensor, backend: str) -> bool:
     return backend == "auto" and left.device.type == "cpu" and left.dtype == torch.float32 and not needs_grad
 
 
-def _hwc(img: torch.Tensor) -> np.ndarray:
-    """(C, H, W) tensor -> (H, W, C) float32 C-contiguous array."""
-    return np.ascontiguousarray(img.detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+def _chw(img: torch.Tensor) -> np.ndarray:
+    """(C, H, W) tensor -> (C, H, W) float32 C-contiguous array (no copy for a contiguous float32 CPU tensor)."""
+    return np.ascontiguousarray(img.detach().to("cpu", torch.float32).numpy())
 
 
 def _box_np(img: np.ndarray, window: int) -> np.ndarray:
-    """box_mean of an (H, W[, C]) float32 array with the numba kernel (a copy)."""
+    """box_mean of a planar (C, H, W) or (H, W) float32 array with the numba kernel (a copy)."""
     from stereonet.cost._cost_numba import box_mean_hwd
 
-    out = np.array(img if img.ndim == 3 else img[:, :, None], dtype=np.float32, order="C")
-    box_mean_hwd(out, window)
-    return out if img.ndim == 3 else out[:, :, 0]
+    hwc = np.array(img[:, :, None] if img.ndim == 2 else img.transpose(1, 2, 0), dtype=np.float32, order="C")
+    box_mean_hwd(hwc, window)
+    return np.ascontiguousarray(hwc[:, :, 0] if img.ndim == 2 else hwc.transpose(2, 0, 1))
 
 
-def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int, *,
+_NO_CODES = np.zeros((1, 1, 1), np.uint64)
+_NO_MAP = np.zeros((1, 1), np.float32)
+
+
+def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window: int, *,
                       census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
-                      mode: str = "multiwindow", base: str = "sad") -> torch.Tensor:
-    """The numba CPU path of every cost (inputs already checked): same definitions as the torch path.
+                      mode: str = "multiwindow", base: str = "sad") -> tuple:
+    """Arguments ``(kind, L, R, CL, CR, window, post, post_window, lam_c, lam_a, mu_l, var_l, mu_r, var_r,
+    min_var)`` of :func:`stereonet.cost._block_numba.block_cost_rows` for one pair ``(C, H, W)`` (inputs
+    already checked), i.e. the definition of ``cost`` as pixelwise cost + box window + post-processing."""
+    from stereonet.cost import _block_numba as E
+    from stereonet.cost._cost_numba import census_khw
+
+    if cost not in COSTS + ("adaptive",):
+        raise StereoInputError(f"cost: expected one of {', '.join(COSTS + ('adaptive',))}, got {cost!r}")
+    if cost == "adaptive" and (mode not in ("multiwindow", "shiftable") or base not in ("sad", "ssd")):
+        raise StereoInputError(f"mode/base: expected 'multiwindow'|'shiftable' and 'sad'|'ssd', got {mode!r}, {base!r}")
+    if cost == "ncc" and window < 3:
+        raise StereoInputError(f"window: NCC needs a window of at least 3, got {window}")
+    codes_l = codes_r = _NO_CODES
+    maps = (_NO_MAP,) * 4
+    post, post_window = E.POST_NONE, 1
+    if cost in ("census", "census_ad"):
+        check_window(census_window, "census_window")
+        if census_window < 3:
+            raise StereoInputError(f"census_window: expected an odd integer >= 3, got {census_window}")
+        gl, gr = grey_numpy(left), grey_numpy(right)
+        codes_l = census_khw(gl, census_window, BITS_PER_WORD)  # KxHxW
+        codes_r = census_khw(gr, census_window, BITS_PER_WORD)
+    if cost == "census":
+        kind, li, ri = E.KIND_HAMMING, gl[None], gr[None]
+    elif cost == "ncc":
+        gl, gr = grey_numpy(left), grey_numpy(right)
+        kind, li, ri, post = E.KIND_PROD, gl[None], gr[None], E.POST_NCC
+        mu_l, mu_r = _box_np(gl, window), _box_np(gr, window)
+        var_l = np.maximum(_box_np(gl * gl, window) - mu_l * mu_l, np.float32(0))
+        var_r = np.maximum(_box_np(gr * gr, window) - mu_r * mu_r, np.float32(0))
+        maps = (mu_l, var_l, mu_r, var_r)
+    else:
+        li, ri = _chw(left), _chw(right)
+        squared = cost == "ssd" or (cost == "adaptive" and base == "ssd")
+        kind = E.KIND_CENSUS_AD if cost == "census_ad" else (E.KIND_SQ if squared else E.KIND_ABS)
+        if cost == "zsad":
+            li, ri = li - _box_np(li, window), ri - _box_np(ri, window)
+        elif cost == "lssad":
+            li = li / (_box_np(li, window) + np.float32(LSSAD_EPS))
+            ri = ri / (_box_np(ri, window) + np.float32(LSSAD_EPS))
+        if cost == "adaptive":
+            post, post_window = (E.POST_MULTIWINDOW if mode == "multiwindow" else E.POST_SHIFTABLE), window
+    box = 1 if cost == "ad" else window
+    return (kind, np.ascontiguousarray(li, np.float32), np.ascontiguousarray(ri, np.float32), codes_l, codes_r,
+            box, post, post_window, np.float32(lambda_census), np.float32(lambda_ad), *maps,
+            np.float32(NCC_MIN_VARIANCE))
+
+
+def run_block_engine(mode: int, args: tuple, n_disp: int, method: int = 0, ratio: float = 0.0,
+                     lr_tol: float = -1.0) -> tuple:
+    """Call :func:`stereonet.cost._block_numba.block_cost_rows` with :func:`numba_engine_args` ``args``."""
+    from stereonet.cost._block_numba import block_cost_rows
+
+    kind, li, ri, cl, cr, box, post, post_window, lam_c, lam_a, mu_l, var_l, mu_r, var_r, min_var = args
+    return block_cost_rows(mode, kind, li, ri, cl, cr, n_disp, box, post, post_window, lam_c, lam_a,
+                           mu_l, var_l, mu_r, var_r, min_var, method, float(ratio), float(lr_tol))
+
+
+def out_of_image_cost(row_maxima: list[np.ndarray]) -> np.float32:
+    """The cost of positions ``x < d``: ``max(volume before filling) + 1`` over the whole batch."""
+    return np.float32(max(float(m.max()) for m in row_maxima) + 1.0)
+
+
+def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
+                      **options) -> torch.Tensor:
+    """The numba CPU path of every cost (inputs already checked): same definitions as the torch path,
+    computed row by row by :func:`stereonet.cost._block_numba.block_cost_rows` (``options``: those of
+    :func:`numba_engine_args`).
 
     Returns:
         :math:`(B, D, H, W)` float32 *view* of a ``(B, H, W, D)`` buffer (disparity innermost, the layout
         the numba SGM and selection kernels read without copying), cast to the input dtype.
     """
-    from stereonet.cost import _cost_numba as K
+    from stereonet.cost._block_numba import MODE_VOLUME
+    from stereonet.cost._cost_numba import fill_invalid_hwd
 
-    if cost == "adaptive" and (mode not in ("multiwindow", "shiftable") or base not in ("sad", "ssd")):
-        raise StereoInputError(f"mode/base: expected 'multiwindow'|'shiftable' and 'sad'|'ssd', got {mode!r}, {base!r}")
-    n_disp = max_disp + 1
-    vols = []
+    vols, maxima = [], []
     for b in range(left.shape[0]):
-        lb, rb = left[b:b + 1], right[b:b + 1]
-        if cost in ("ad", "sad", "ssd", "adaptive"):
-            sq = cost == "ssd" or (cost == "adaptive" and base == "ssd")
-            vol = K.pixel_diff(_hwc(lb[0]), _hwc(rb[0]), n_disp, sq)
-        elif cost == "zsad":
-            li, ri = _hwc(lb[0]), _hwc(rb[0])
-            vol = K.pixel_diff(li - _box_np(li, window), ri - _box_np(ri, window), n_disp, False)
-        elif cost == "lssad":
-            li, ri = _hwc(lb[0]), _hwc(rb[0])
-            vol = K.pixel_diff(li / (_box_np(li, window) + np.float32(LSSAD_EPS)),
-                               ri / (_box_np(ri, window) + np.float32(LSSAD_EPS)), n_disp, False)
-        elif cost == "ncc":
-            gl, gr = grey_numpy(lb[0]), grey_numpy(rb[0])
-            vol = K.pixel_product(gl, gr, n_disp)
-        elif cost in ("census", "census_ad"):
-            check_window(census_window, "census_window")
-            if census_window < 3:
-                raise StereoInputError(f"census_window: expected an odd integer >= 3, got {census_window}")
-            cl = K.census_hwk(grey_numpy(lb[0]), census_window, BITS_PER_WORD)
-            cr = K.census_hwk(grey_numpy(rb[0]), census_window, BITS_PER_WORD)
-            if cost == "census":
-                vol = K.pixel_hamming(cl, cr, n_disp)
-            else:
-                vol = K.pixel_census_ad(cl, cr, _hwc(lb[0]), _hwc(rb[0]), n_disp, np.float32(lambda_census),
-                                        np.float32(lambda_ad))
-        else:
-            raise StereoInputError(f"cost: expected one of {', '.join(COSTS + ('adaptive',))}, got {cost!r}")
-        if window > 1 and cost != "ad":
-            K.box_mean_hwd(vol, window)
-        if cost == "ncc":
-            mu_l, mu_r = _box_np(gl, window), _box_np(gr, window)
-            var_l = np.maximum(_box_np(gl * gl, window) - mu_l * mu_l, np.float32(0))
-            var_r = np.maximum(_box_np(gr * gr, window) - mu_r * mu_r, np.float32(0))
-            K.ncc_finalize(vol, mu_l, var_l, mu_r, var_r, NCC_MIN_VARIANCE)
-        if cost == "adaptive":
-            vol = K.multiwindow_hwd(vol, window) if mode == "multiwindow" else K.min_filter_hwd(vol, window)
-        vols.append(vol)
-    fill = np.float32(max(float(v.max()) for v in vols) + 1.0)
+        res = run_block_engine(MODE_VOLUME, numba_engine_args(left[b], right[b], cost, window, **options),
+                               max_disp + 1)
+        vols.append(res[0])
+        maxima.append(res[1])
+    fill = out_of_image_cost(maxima)
     for v in vols:
-        K.fill_invalid_hwd(v, fill)
+        fill_invalid_hwd(v, fill)
     out = torch.from_numpy(np.stack(vols) if len(vols) > 1 else vols[0][None])  # BxHxWxD
     return out.permute(0, 3, 1, 2).to(device=left.device, dtype=left.dtype)  # BxDxHxW view
 
@@ -259,7 +295,7 @@ def ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, *,
                    backend: str = "auto") -> torch.Tensor:
     """Pixelwise absolute difference (mean over channels). ``left``/``right`` (B, C, H, W) -> (B, D, H, W)."""
     left, right, max_disp, _ = _prepare(left, right, max_disp, 1)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "ad", 1)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, memory_budget=memory_budget)
 
@@ -269,7 +305,7 @@ def sad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wind
                     backend: str = "auto") -> torch.Tensor:
     """Window mean of absolute differences. (B, C, H, W) pair -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "sad", window)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
 
@@ -279,7 +315,7 @@ def ssd_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wind
                     backend: str = "auto") -> torch.Tensor:
     """Window mean of squared differences. (B, C, H, W) pair -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "ssd", window)
     return sweep_cost_volume(left, right, max_disp, _sq_diff, _box(window), memory_budget=memory_budget)
 
@@ -289,7 +325,7 @@ def zsad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, win
                      backend: str = "auto") -> torch.Tensor:
     """SAD of zero-mean images ``I - box_mean(I, window)`` (see module doc). -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "zsad", window)
     lz, rz = left - box_mean(left, window), right - box_mean(right, window)
     return sweep_cost_volume(lz, rz, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
@@ -300,7 +336,7 @@ def lssad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wi
                       backend: str = "auto") -> torch.Tensor:
     """SAD of locally scaled images ``I / (box_mean(I, window) + 1/255)`` (see module doc). -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "lssad", window)
     ls = left / (box_mean(left, window) + LSSAD_EPS)
     rs = right / (box_mean(right, window) + LSSAD_EPS)
@@ -312,7 +348,7 @@ def ncc_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wind
                     backend: str = "auto") -> torch.Tensor:
     """``1 - NCC`` over the window on grey images; zero variance -> NCC := 0 (cost 1). -> (B, D, H, W) in [0, 2]."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "ncc", window)
     if window < 3:
         raise StereoInputError(f"window: NCC needs a window of at least 3, got {window}")
@@ -345,7 +381,7 @@ def census_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, w
                        backend: str = "auto") -> torch.Tensor:
     """Hamming distance of census codes, box-averaged over ``window``. -> (B, D, H, W) in bits."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "census", window, census_window=census_window)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
 
@@ -362,7 +398,7 @@ def census_ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int
                           backend: str = "auto") -> torch.Tensor:
     """AD-Census ``2 - exp(-hamming/lambda_census) - exp(-ad/lambda_ad)``. -> (B, D, H, W) in [0, 2)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "census_ad", window, census_window=census_window,
                                  lambda_census=lambda_census, lambda_ad=lambda_ad)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
@@ -393,7 +429,7 @@ def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int,
         :math:`(B, D, H, W)` mean costs.
     """
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if _use_numba(left, right, backend):
+    if use_numba(left, right, backend):
         return numba_cost_volume(left, right, max_disp, "adaptive", window, mode=mode, base=base)
     pixel = {"sad": _abs_diff, "ssd": _sq_diff}.get(base)
     if pixel is None:

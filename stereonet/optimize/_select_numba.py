@@ -10,7 +10,7 @@ from numba import prange
 
 
 @numba.njit(fastmath={"nnan", "nsz", "reassoc"}, inline="always")
-def _min_range(c, lo, hi):
+def min_range(c, lo, hi):
     """min of c[lo:hi] (+inf when empty); vectorised (the volume holds no NaN)."""
     m = np.float32(3.4e38)
     for d in range(max(lo, 0), hi):
@@ -19,19 +19,66 @@ def _min_range(c, lo, hi):
 
 
 @numba.njit(inline="always")
-def _wta_right_row(row, out):
-    """Right-reference WTA of one row (W, D) into out (W,), ties to the smallest disparity."""
+def wta_right_row(row, out):
+    """Right-reference WTA of one row (W, D) into out (W,), ties to the smallest disparity.
+
+    Disparity-outer loop over the diagonal ``row[xr + d, d]`` (a strided slice of the flat row), branch-free
+    inner loop over xr (vectorised)."""
     W, D = row.shape
-    best = np.empty(W, np.float32)
-    for x in range(W):
-        best[x] = row[x, 0]
-        out[x] = 0
-    for x in range(W):
-        for d in range(1, min(D, x + 1)):
-            v = row[x, d]
-            if v < best[x - d]:
-                best[x - d] = v
-                out[x - d] = d
+    flat = row.ravel()
+    best = row[:, 0].copy()
+    out[:] = 0
+    for d in range(1, min(D, W)):
+        diag = flat[d * (D + 1)::D]  # diag[xr] = row[xr + d, d]
+        fd = np.float32(d)
+        for xr in range(W - d):
+            v = diag[xr]
+            b = best[xr]
+            take = v < b
+            best[xr] = v if take else b
+            out[xr] = fd if take else out[xr]
+
+
+@numba.njit(inline="always")
+def first_argmin(c, n):
+    """(min of c[:n], first index of it); ties resolve to the smallest index."""
+    best = min_range(c, 0, n)
+    bi = 0
+    while c[bi] != best:
+        bi += 1
+    return best, bi
+
+
+@numba.njit(inline="always")
+def is_unique(best, second, keep):
+    """The uniqueness rule of :func:`stereonet.optimize.wta.uniqueness_mask`: best <= (1 - ratio) * second."""
+    return best <= keep * second
+
+
+@numba.njit(inline="always")
+def subpixel_offset(best, cm, cp, method):
+    """Offset in [-0.5, 0.5] of the parabola (method 1) or equiangular (2) fit through c(d-1), c(d), c(d+1);
+    0 for a degenerate fit."""
+    if method == 1:
+        den = np.float32(2.0) * (cm - np.float32(2.0) * best + cp)
+    else:
+        den = np.float32(2.0) * max(cm - best, cp - best)
+    off = np.float32(0.0)
+    if den > 0:
+        off = (cm - cp) / den
+        off = min(max(off, np.float32(-0.5)), np.float32(0.5))
+    return off
+
+
+@numba.njit(inline="always")
+def lr_check_row(disp_int, disp_right, lr_ok, lr_tol):
+    """LR check of one row: integer left disparities (W,) against the right-reference row (W,)."""
+    for x in range(disp_int.shape[0]):
+        xr = x - int(disp_int[x])
+        if xr < 0:
+            lr_ok[x] = False
+        else:
+            lr_ok[x] = abs(disp_int[x] - disp_right[xr]) <= lr_tol
 
 
 @numba.njit(parallel=True, cache=True)
@@ -55,35 +102,18 @@ def select_hwd(vol, method, ratio, lr_tol):
     for y in prange(H):
         for x in range(W):
             c = vol[y, x]
-            best = _min_range(c, 0, D)
-            bi = 0
-            while c[bi] != best:  # first index of the minimum (ties to the smallest d)
-                bi += 1
+            best, bi = first_argmin(c, D)
             if ratio > 0:
-                second = min(_min_range(c, 0, bi - 1), _min_range(c, bi + 2, D))
-                unique[y, x] = best <= keep * second
+                unique[y, x] = is_unique(best, min(min_range(c, 0, bi - 1), min_range(c, bi + 2, D)), keep)
             min_cost[y, x] = best
             off = np.float32(0.0)
             if method > 0 and 0 < bi < D - 1:
-                cm = c[bi - 1]
-                cp = c[bi + 1]
-                if method == 1:
-                    den = np.float32(2.0) * (cm - np.float32(2.0) * best + cp)
-                else:
-                    den = np.float32(2.0) * max(cm - best, cp - best)
-                if den > 0:
-                    off = (cm - cp) / den
-                    off = min(max(off, np.float32(-0.5)), np.float32(0.5))
+                off = subpixel_offset(best, c[bi - 1], c[bi + 1], method)
             disp[y, x] = np.float32(bi) + off
             disp_int[y, x] = bi
-        _wta_right_row(vol[y], disp_right[y])
+        wta_right_row(vol[y], disp_right[y])
         if lr_tol >= 0:
-            for x in range(W):
-                xr = x - int(disp_int[y, x])
-                if xr < 0:
-                    lr_ok[y, x] = False
-                else:
-                    lr_ok[y, x] = abs(disp_int[y, x] - disp_right[y, xr]) <= lr_tol
+            lr_check_row(disp_int[y], disp_right[y], lr_ok[y], lr_tol)
     return disp, min_cost, unique, disp_right, lr_ok
 
 
@@ -93,5 +123,5 @@ def wta_right_hwd(vol):
     H, W, D = vol.shape
     disp_right = np.zeros((H, W), np.float32)
     for y in prange(H):
-        _wta_right_row(vol[y], disp_right[y])
+        wta_right_row(vol[y], disp_right[y])
     return disp_right

@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import torch
 
+from stereonet.checks import check_window
 from stereonet.cost import build_cost_volume
+from stereonet.cost.volume import use_numba
 from stereonet.matchers import register
 from stereonet.optimize.fill import fill_occlusions
 from stereonet.optimize.filters import median_filter, speckle_filter
 from stereonet.optimize.sgm import sgm_aggregate
-from stereonet.optimize.wta import select_disparity
+from stereonet.optimize.wta import block_select_checked, select_disparity
 from stereonet.types import StereoOutput
 
 BM_DEFAULTS = dict(subpixel="parabola", uniqueness=0.1, lr_tol=1.0, median=0, speckle_size=0,
@@ -59,7 +61,14 @@ def select_and_filter(cost: torch.Tensor, *, subpixel: str | None = "parabola", 
         :class:`StereoOutput` with ``cost_volume=cost`` and extras ``disparity_right`` (right-reference
         WTA), ``lr_valid`` and ``unique`` (bool masks).
     """
-    disp, _, unique, disp_right, lr_ok = select_disparity(cost, subpixel, uniqueness, lr_tol)
+    selection = select_disparity(cost, subpixel, uniqueness, lr_tol)
+    return _filter(selection, cost, median=median, speckle_size=speckle_size, speckle_diff=speckle_diff, fill=fill)
+
+
+def _filter(selection: tuple, cost: torch.Tensor | None, *, median: int, speckle_size: int, speckle_diff: float,
+            fill: bool) -> StereoOutput:
+    """Post-filters of :func:`select_and_filter` on a ``(disp, min_cost, unique, disp_right, lr_ok)`` tuple."""
+    disp, _, unique, disp_right, lr_ok = selection
     valid = unique & lr_ok
     if median:
         disp = median_filter(disp, median, valid)
@@ -77,10 +86,21 @@ def _split(options: dict, defaults: dict) -> tuple[dict, dict]:
     return merged, back
 
 
-def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
-                   **options) -> StereoOutput:
-    """Block matching with ``cost`` over ``window`` + the local back end (:func:`select_and_filter`)."""
+def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int, *,
+                   keep_volume: bool = False, **options) -> StereoOutput:
+    """Block matching with ``cost`` over ``window`` + the local back end (:func:`select_and_filter`).
+
+    Inputs must be checked already (the matcher registry does). For float32 CPU input without gradient
+    and ``keep_volume=False`` the volume is never built: :func:`~stereonet.optimize.wta.block_select_checked`
+    fuses cost, window sums and selection in one numba pass (same disparities as the volume path) and
+    the output has ``cost_volume=None``; ``keep_volume=True`` (or a torch backend) builds the volume and
+    returns it as ``cost_volume``.
+    """
     cost_opts, back = _split(options, BM_DEFAULTS)
+    if not keep_volume and use_numba(left, right, cost_opts.get("backend", "auto")):
+        selection = block_select_checked(left, right, max_disp, cost, check_window(window), back.pop("subpixel"),
+                                         back.pop("uniqueness"), back.pop("lr_tol"), **cost_opts)
+        return _filter(selection, None, **back)
     vol = build_cost_volume(left, right, max_disp, cost=cost, window=window, **cost_opts)
     return select_and_filter(vol, **back)
 
@@ -92,7 +112,8 @@ def _bm(name: str, cost: str, window: int, description: str, **fixed):
         return block_matching(left, right, max_disp, cost, opts.pop("window"), **opts)
 
     run.__name__ = name.replace("-", "_")
-    run.__doc__ = f"{description}. Options: window, subpixel, uniqueness, lr_tol, median, speckle_size, fill."
+    run.__doc__ = (f"{description}. Options: window, subpixel, uniqueness, lr_tol, median, speckle_size, fill, "
+                   "keep_volume (return the cost volume; slower).")
     return run
 
 

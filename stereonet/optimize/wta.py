@@ -44,6 +44,21 @@ def uniqueness_mask(cost: torch.Tensor, disp: torch.Tensor, ratio: float = 0.1) 
     return best <= (1.0 - ratio) * second
 
 
+SUBPIXEL_METHODS = {None: 0, "parabola": 1, "equiangular": 2}
+
+
+def selection_args(subpixel: str | None, uniqueness: float, lr_tol: float | None) -> tuple[int, float, float]:
+    """Validate the selection options; returns the numba kernels' ``(method, ratio, lr_tol)`` codes
+    (method 0/1/2 = none/parabola/equiangular, lr_tol -1 = no LR check)."""
+    if subpixel not in SUBPIXEL_METHODS:
+        raise StereoInputError(f"subpixel: expected 'parabola', 'equiangular' or None, got {subpixel!r}")
+    if not 0.0 <= uniqueness < 1.0:
+        raise StereoInputError(f"uniqueness: expected 0 <= uniqueness < 1, got {uniqueness}")
+    if lr_tol is not None and lr_tol < 0:
+        raise StereoInputError(f"lr_tol: expected a non-negative tolerance or None, got {lr_tol}")
+    return SUBPIXEL_METHODS[subpixel], float(uniqueness), -1.0 if lr_tol is None else float(lr_tol)
+
+
 def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniqueness: float = 0.0,
                      lr_tol: float | None = None, backend: str = "auto"
                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -70,15 +85,9 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
     from stereonet.optimize.subpixel import subpixel_refine
 
     check_cost_volume(cost)
-    methods = {None: 0, "parabola": 1, "equiangular": 2}
-    if subpixel not in methods:
-        raise StereoInputError(f"subpixel: expected 'parabola', 'equiangular' or None, got {subpixel!r}")
-    if not 0.0 <= uniqueness < 1.0:
-        raise StereoInputError(f"uniqueness: expected 0 <= uniqueness < 1, got {uniqueness}")
+    method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
-    if lr_tol is not None and lr_tol < 0:
-        raise StereoInputError(f"lr_tol: expected a non-negative tolerance or None, got {lr_tol}")
     use_numba = backend == "numba" or (backend == "auto" and cost.device.type == "cpu"
                                        and cost.dtype == torch.float32
                                        and not (torch.is_grad_enabled() and cost.requires_grad))
@@ -94,9 +103,60 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
     outs = []
     for b in range(cost.shape[0]):
         vol = cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
-        tol = -1.0 if lr_tol is None else float(lr_tol)
-        outs.append([torch.from_numpy(a) for a in select_hwd(vol, methods[subpixel], float(uniqueness), tol)])
+        outs.append([torch.from_numpy(a) for a in select_hwd(vol, method, ratio, tol)])
+    return _stack_selection(outs, cost.dtype, cost.device)
+
+
+def _stack_selection(outs: list, dtype: torch.dtype, device: torch.device) -> tuple:
+    """Per-item numpy/torch ``(disp, min_cost, unique, disp_right, lr_ok)`` (H, W) -> batched (B, 1, H, W)."""
     disp, min_cost, unique, disp_right, lr_ok = (
-        (torch.stack([o[i] for o in outs]) if len(outs) > 1 else outs[0][i][None])[:, None].to(cost.device)
-        for i in range(5))
-    return disp.to(cost.dtype), min_cost.to(cost.dtype), unique, disp_right.to(cost.dtype), lr_ok
+        (torch.stack([torch.as_tensor(o[i]) for o in outs]) if len(outs) > 1
+         else torch.as_tensor(outs[0][i])[None])[:, None].to(device) for i in range(5))
+    return disp.to(dtype), min_cost.to(dtype), unique, disp_right.to(dtype), lr_ok
+
+
+def block_select_disparity(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = "sad",
+                           window: int = 5, subpixel: str | None = "parabola", uniqueness: float = 0.0,
+                           lr_tol: float | None = None, **cost_options
+                           ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``select_disparity(build_cost_volume(left, right, max_disp, cost, window, **cost_options), ...)``
+    without building the volume: one fused numba pass per image computes each cost row with sliding
+    window sums and selects on it (:func:`stereonet.cost._block_numba.block_cost_rows`, the same
+    arithmetic as the numba volume, so the same result), then the few left-border pixels whose answer
+    depends on the out-of-image cost are finished. Memory: O(W * D) per thread instead of O(H * W * D).
+
+    Args:
+        left, right: :math:`(B, C, H, W)` float images (checked here; computed in float32 on the CPU).
+        max_disp, cost, window, cost_options: as :func:`stereonet.cost.build_cost_volume` (``backend`` and
+            ``memory_budget`` are ignored).
+        subpixel, uniqueness, lr_tol: as :func:`select_disparity`.
+
+    Returns:
+        ``(disp, min_cost, unique, disp_right, lr_ok)`` as :func:`select_disparity`, each
+        :math:`(B, 1, H, W)` on the device and in the dtype of ``left``.
+    """
+    from stereonet.checks import check_stereo_inputs, check_window
+
+    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    return block_select_checked(left, right, max_disp, cost, check_window(window), subpixel, uniqueness, lr_tol,
+                                **cost_options)
+
+
+def block_select_checked(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
+                         subpixel: str | None, uniqueness: float, lr_tol: float | None, **cost_options) -> tuple:
+    """:func:`block_select_disparity` for inputs already validated (the matcher registry checked them)."""
+    from stereonet.cost._block_numba import MODE_SELECT, finish_border_selection
+    from stereonet.cost.volume import numba_engine_args, out_of_image_cost, run_block_engine
+
+    method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
+    for key in ("backend", "memory_budget"):
+        cost_options.pop(key, None)
+    n_disp = max_disp + 1
+    results = [run_block_engine(MODE_SELECT, numba_engine_args(left[b], right[b], cost, window, **cost_options),
+                                n_disp, method, ratio, tol) for b in range(left.shape[0])]
+    fill = out_of_image_cost([res[1] for res in results])
+    outs = []
+    for _, _, disp, min_cost, unique, disp_right, lr_ok, strip in results:
+        finish_border_selection(disp, min_cost, unique, strip, n_disp, fill, method, ratio)
+        outs.append((disp, min_cost, unique, disp_right, lr_ok))
+    return _stack_selection(outs, left.dtype, left.device)
