@@ -100,16 +100,17 @@ def pack_scene(scene, camera=None) -> dict[str, np.ndarray]:
                 bank_texture(int(b))  # generated on first use
         mrow[SCALE2], mrow[CONTRAST], mrow[PERIOD], mrow[DUTY] = m.scale2, m.contrast, m.period, m.duty
         mrow[KS], mrow[SHINY] = m.specular, m.shininess
-        if camera is not None:
-            bs = o.bounding_sphere()
-            if bs is not None:
-                box = camera.pixel_bbox(bs[0], bs[1])
-                boxes[k] = np.nan if box is None else box
+    if camera is not None:
+        bounded = [(k, bs) for k, bs in enumerate(o.bounding_sphere() for o in scene.objects) if bs is not None]
+        if bounded:
+            rows = [k for k, _ in bounded]
+            boxes[rows] = camera.pixel_bboxes(np.array([bs[0] for _, bs in bounded]),
+                                              np.array([bs[1] for _, bs in bounded]))
     return dict(objs=objs, edges=edges, blobs=blobs, mats=mats, boxes=boxes, bank=bank_table())
 
 
 @numba.njit(cache=True, error_model="numpy")
-def zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, skip_planes, t_out, ids_out
+def zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, skip_planes, t_out, ids_out, t_max=np.inf
             ):  # pragma: no cover - compiled
     """Nearest hit ``t_out[i]`` (inf on a miss) and its object ``ids_out[i]`` (-1) of every ray
     ``origin + t dirs[i]``, object by object: each object is intersected only with the rays inside its pixel
@@ -117,13 +118,14 @@ def zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, grid_w, skip_planes, t
 
     ``grid_w > 0``: the rays are a row-major pixel grid of that width (ray ``i`` through pixel
     ``(i % grid_w, i // grid_w)``), so each box is a block of rows and ``pix`` is unused; else ``pix[i]`` is
-    the pixel of ray i. ``skip_planes``: leave infinite planes out. Same first hits as the torch primitives.
+    the pixel of ray i. ``skip_planes``: leave infinite planes out; ``t_max``: only hits with t < t_max count
+    (others leave ``t_out = t_max``, id -1). Same first hits as the torch primitives.
 
     """
     n = dirs.shape[0]
     ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(n):
-        t_out[i] = np.inf
+        t_out[i] = t_max
         ids_out[i] = -1
     h = n // grid_w if grid_w > 0 else 1
     if grid_w <= 0:  # bucket the rays by pixel row (counting sort) so that objects visit only their rows
@@ -329,6 +331,7 @@ def _smooth_square(phase, softness):
 
 
 SPEC_CUTOFF = 1e-5  # specular lobes below this fraction of ks are skipped (set to 0) without a pow
+LOG_SPEC_CUTOFF = math.log(SPEC_CUTOFF)
 
 
 @numba.njit(cache=True)
@@ -340,7 +343,7 @@ def _blinn_phong(ks, shininess, nx, ny, nz, vx, vy, vz, lx, ly, lz):  # pragma: 
     hn = max(math.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
     ndh = (nx * hx + ny * hy + nz * hz) / hn
     # ndh^s < cutoff  <=>  ndh < cutoff^(1/s) ~ 1 + ln(cutoff) / s (the tangent bound is below it: safe)
-    if ndh <= 1.0 + math.log(SPEC_CUTOFF) / shininess:
+    if ndh * shininess <= shininess + LOG_SPEC_CUTOFF:
         return 0.0
     return ks * ndh ** shininess
 
@@ -491,9 +494,9 @@ def hidden_points(points, pix, origin, objs, edges, blobs, boxes, rel_eps, out):
         dirs[i, 0], dirs[i, 1], dirs[i, 2] = points[i, 0] - ox, points[i, 1] - oy, points[i, 2] - oz
     t = np.empty(n)
     ids = np.empty(n, dtype=np.int64)
-    zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, 0, True, t, ids)
+    zbuffer(dirs, pix, origin, objs, edges, blobs, boxes, 0, True, t, ids, 1 - rel_eps)
     for i in range(n):
-        out[i] = t[i] < 1 - rel_eps
+        out[i] = ids[i] >= 0
     for k in range(objs.shape[0]):
         if int(objs[k, TYPE]) != PLANE:
             continue

@@ -144,6 +144,43 @@ class Camera:
             self._bbox_cache[key] = self._pixel_bbox(np.asarray(centre, dtype=np.float64), radius, margin)
         return self._bbox_cache[key]
 
+    def pixel_bboxes(self, centres: np.ndarray, radii: np.ndarray, margin: float = 1.5) -> np.ndarray:
+        """:meth:`pixel_bbox` of K spheres at once: ``(K, 4)`` rows ``(x0, x1, y0, y1)``, ``(-inf, inf, -inf,
+        inf)`` for spheres reaching behind the camera and NaN rows for spheres surely unseen."""
+        centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+        radii = np.asarray(radii, dtype=np.float64).reshape(-1)
+        k = centres.shape[0]
+        out = np.empty((k, 4))
+        if k == 0:
+            return out
+        pc = (centres[:, None, :] + radii[:, None, None] * _BOX_CORNERS[None]) @ self.R.T + self.t  # Kx8x3
+        z = pc[..., 2]
+        behind = np.any(z <= 1e-9, axis=1)
+        unseen = np.all(z <= 1e-9, axis=1)
+        zs = np.where(z > 1e-9, z, 1.0)
+        xn, yn = pc[..., 0] / zs, pc[..., 1] / zs
+        x0, x1, y0, y1 = xn.min(1), xn.max(1), yn.min(1), yn.max(1)
+        m = margin
+        if self.dist is not None:  # distort the rectangles' boundaries; interiors map inside them
+            s = np.linspace(0.0, 1.0, 33)[None, :]
+            dx, dy = (x1 - x0)[:, None], (y1 - y0)[:, None]
+            bx = np.concatenate([x0[:, None] + dx * s, np.repeat(x1[:, None], 33, 1), x1[:, None] - dx * s,
+                                 np.repeat(x0[:, None], 33, 1)], axis=1)
+            by = np.concatenate([np.repeat(y0[:, None], 33, 1), y0[:, None] + dy * s, np.repeat(y1[:, None], 33, 1),
+                                 y1[:, None] - dy * s], axis=1)
+            bx, by = self.distort(bx, by)
+            x0, x1, y0, y1 = bx.min(1), bx.max(1), by.min(1), by.max(1)
+            m = margin + 2.0
+        K = self.K
+        skew = abs(K[0, 1]) * np.maximum(np.abs(y0), np.abs(y1))
+        out[:, 0] = np.minimum(K[0, 0] * x0, K[0, 0] * x1) + K[0, 2] - skew - m
+        out[:, 1] = np.maximum(K[0, 0] * x0, K[0, 0] * x1) + K[0, 2] + skew + m
+        out[:, 2] = np.minimum(K[1, 1] * y0, K[1, 1] * y1) + K[1, 2] - m
+        out[:, 3] = np.maximum(K[1, 1] * y0, K[1, 1] * y1) + K[1, 2] + m
+        out[behind] = (-np.inf, np.inf, -np.inf, np.inf)
+        out[unseen] = np.nan
+        return out
+
     def _pixel_bbox(self, centre: np.ndarray, radius: float, margin: float):
         pc = (centre[None, :] + radius * _BOX_CORNERS) @ self.R.T + self.t  # 8x3, box around the sphere
         if np.any(pc[:, 2] <= 1e-9):
