@@ -6,6 +6,10 @@ disparity at every scale (1/16, 1/8, 1/4, 1/2, 1/1). The 1/16 and 1/8 prediction
 decoder (as in DispNet); from 1/4 on, each prediction is a residual on a coarser one, and the 1/4 one starts
 from a soft-argmin over the (lightly aggregated) correlation, so that the network matches from its first
 training step and the decoder only learns corrections (our change to DispNet for short CPU training).
+The 1/2 and 1/1 decoder stages also see a *local* correlation: shared features of the right view, warped
+by the upsampled coarser disparity, are correlated with the left features at ``±refine_radius`` pixels of
+that scale (as in the refinement stages of DispNet-CSS / PWC-Net), so the fine residuals are matched, not
+guessed from the image.
 Every disparity in the output is in pixels of the *input* resolution, left-referenced.
 
 The network needs its input padded to a multiple of :attr:`DispNet.stride`; :func:`predict_disparity`
@@ -23,9 +27,13 @@ from torch import nn
 from stereonet.checks import check_image_pair
 from stereonet.models.layers import (
     InputPadder,
+    conv3d_block,
     conv_block,
     correlation_1d,
+    group_correlation_1d,
+    local_correlation,
     standardize_image,
+    unit_channels,
     upconv_block,
 )
 
@@ -61,28 +69,49 @@ class DispNet(nn.Module):
         max_disp: largest disparity (input pixels) the correlation layer covers; the correlation at 1/4 has
             ``max_disp // 4 + 1`` channels. Larger disparities cannot be matched (see ``predict_disparity``).
         channels: base width ``c``; encoder widths are c, 2c, 4c, 6c.
+        refine_radius: half-width (pixels of each scale) of the local correlations at 1/2 and 1/1.
+        aggregation: how the 1/4 correlation is turned into the soft-argmin start: "2d" (2-D convolutions with
+            the disparities as channels) or "3d" (a group-wise correlation volume, ``groups`` groups,
+            aggregated by three 3x3x3 convolutions as in GwcNet; much better matching for little time).
+        groups: channel groups of the "3d" correlation.
     """
 
     stride = 16
     scales = (16, 8, 4, 2, 1)
 
-    def __init__(self, max_disp: int = 96, channels: int = 16) -> None:
+    def __init__(self, max_disp: int = 96, channels: int = 16, refine_radius: int = 2,
+                 aggregation: str = "2d", groups: int = 4) -> None:
         super().__init__()
         if max_disp < 4:
             raise ValueError(f"max_disp: expected >= 4, got {max_disp}")
+        if aggregation not in ("2d", "3d"):
+            raise ValueError(f"aggregation: expected '2d' or '3d', got {aggregation!r}")
+        if groups < 1 or (2 * channels) % groups:
+            raise ValueError(f"groups: expected a divisor of 2 * channels = {2 * channels}, got {groups}")
+        if refine_radius < 0:
+            raise ValueError(f"refine_radius: expected >= 0, got {refine_radius}")
         self.max_disp = int(max_disp)
         self.channels = int(channels)
+        self.refine_radius = int(refine_radius)
+        self.aggregation, self.groups = aggregation, int(groups)
         c = self.channels
+        r = 2 * self.refine_radius + 1  # channels of each local correlation
         self.corr_disp = self.max_disp // 4
         d4 = self.corr_disp + 1
         self.disp_unit = self.max_disp / 8.0  # predictor outputs are scaled by this (keeps raw outputs ~1)
-        # shared encoder, both images: 1/2 and 1/4
+        # shared encoder, both images: 1/1 (matching features only), 1/2 and 1/4
+        self.enc0 = nn.Sequential(conv_block(3, c // 2), conv_block(c // 2, c // 2))
         self.enc1 = nn.Sequential(conv_block(3, c, 5, stride=2), conv_block(c, c))
         self.enc2 = nn.Sequential(conv_block(c, 2 * c, 3, stride=2), conv_block(2 * c, 2 * c))
         # left-only after the correlation: 1/8 and 1/16
         self.redir = conv_block(2 * c, c, 1)
         self.corr_scale = nn.Parameter(torch.tensor(10.0))  # cosine similarity -> soft-argmin logits
-        self.corr_agg = nn.Sequential(conv_block(d4, d4), nn.Conv2d(d4, d4, 3, padding=1))
+        self.local_scale = nn.Parameter(torch.tensor(10.0))  # the same for the local correlations
+        if aggregation == "2d":  # disparities as channels of 2-D convolutions
+            self.corr_agg = nn.Sequential(conv_block(d4, d4), nn.Conv2d(d4, d4, 3, padding=1))
+        else:  # group-wise correlation volume aggregated by 3-D convolutions over (disparity, y, x)
+            g = self.groups
+            self.corr_agg = nn.Sequential(conv3d_block(g, 8), conv3d_block(8, 8), nn.Conv3d(8, 1, 3, padding=1))
         self.enc3 = nn.Sequential(conv_block(d4 + c, 4 * c, 3, stride=2), conv_block(4 * c, 4 * c))
         self.enc4 = nn.Sequential(conv_block(4 * c, 6 * c, 3, stride=2), conv_block(6 * c, 6 * c))
         # decoder
@@ -94,11 +123,19 @@ class DispNet(nn.Module):
         self.dec2 = conv_block(2 * c + 2 * c + d4 + 1, 2 * c)
         self.pred2 = nn.Conv2d(2 * c, 1, 3, padding=1)
         self.up1 = upconv_block(2 * c, c)
-        self.dec1 = conv_block(c + c + 1, c)
+        self.dec1 = nn.Sequential(conv_block(c + c + r + 1, c), conv_block(c, c))
         self.pred1 = nn.Conv2d(c, 1, 3, padding=1)
         self.up0 = upconv_block(c, c // 2)
-        self.dec0 = conv_block(c // 2 + 3 + 1, c // 2)
+        self.dec0 = nn.Sequential(conv_block(c // 2 + 3 + r + 1, c // 2), conv_block(c // 2, c // 2))
         self.pred0 = nn.Conv2d(c // 2, 1, 3, padding=1)
+        self.refine_unit = 2.0  # the 1/2 and 1/1 residuals: raw outputs ~1 = 2 input pixels
+
+    def _local_cost(self, feat_left: torch.Tensor, feat_right: torch.Tensor, disp: torch.Tensor,
+                    scale: int) -> torch.Tensor:
+        """Local correlation at one scale: features :math:`(B, C, h, w)`, ``disp`` :math:`(B, 1, h, w)` in
+        input pixels; returns :math:`(B, 2r+1, h, w)` logits (scaled cosine similarity)."""
+        return local_correlation(unit_channels(feat_left), unit_channels(feat_right),
+                                 disp / scale, self.refine_radius) * self.local_scale
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> DispNetOutput:
         """left, right: :math:`(B, C, H, W)` in [0, 1], H and W multiples of :attr:`stride`."""
@@ -108,12 +145,19 @@ class DispNet(nn.Module):
                              f"got {tuple(left.shape)}")
         x_left, x_right = standardize_image(left), standardize_image(right)
         both = torch.cat([x_left, x_right], dim=0)  # 2BxCxHxW: one pass of the shared encoder
+        e0 = self.enc0(both)
         e1 = self.enc1(both)
         e2 = self.enc2(e1)
         b = left.shape[0]
         e1_l, e2_l, e2_r = e1[:b], e2[:b], e2[b:]
-        corr = correlation_1d(F.normalize(e2_l, dim=1), F.normalize(e2_r, dim=1), self.corr_disp)  # BxD4xH/4xW/4
-        logits = corr * self.corr_scale + self.corr_agg(corr)
+        if self.aggregation == "2d":
+            corr = correlation_1d(unit_channels(e2_l), unit_channels(e2_r), self.corr_disp)  # BxD4xH/4xW/4
+            logits = corr * self.corr_scale + self.corr_agg(corr)
+        else:
+            gwc = group_correlation_1d(unit_channels(e2_l), unit_channels(e2_r), self.corr_disp,
+                                       self.groups)  # BxGxD4xH/4xW/4
+            corr = gwc.mean(dim=1)  # the plain correlation (mean over all channels), BxD4xH/4xW/4
+            logits = corr * self.corr_scale + self.corr_agg(gwc * self.groups)[:, 0]
         levels = torch.arange(corr.shape[1], device=corr.device, dtype=corr.dtype).view(1, -1, 1, 1)
         d_match = (logits.softmax(dim=1) * levels).sum(dim=1, keepdim=True) * 4.0  # Bx1xH/4xW/4, input pixels
         e3 = self.enc3(torch.cat([corr, self.redir(e2_l)], dim=1))
@@ -124,10 +168,14 @@ class DispNet(nn.Module):
         d3 = _up2(d4) + self.pred3(x3) * self.disp_unit
         x2 = self.dec2(torch.cat([self.up2(x3), e2_l, corr, _up2(d3)], dim=1))
         d2 = d_match + self.pred2(x2) * self.disp_unit
-        x1 = self.dec1(torch.cat([self.up1(x2), e1_l, _up2(d2)], dim=1))
-        d1 = _up2(d2) + self.pred1(x1) * self.disp_unit
-        x0 = self.dec0(torch.cat([self.up0(x1), x_left, _up2(d1)], dim=1))
-        d0 = _up2(d1) + self.pred0(x0) * self.disp_unit
+        d1_init = _up2(d2)
+        local1 = self._local_cost(e1_l, e1[b:], d1_init, 2)  # Bx(2r+1)xH/2xW/2
+        x1 = self.dec1(torch.cat([self.up1(x2), e1_l, local1, d1_init / self.disp_unit], dim=1))
+        d1 = d1_init + self.pred1(x1) * self.refine_unit
+        d0_init = _up2(d1)
+        local0 = self._local_cost(e0[:b], e0[b:], d0_init, 1)  # Bx(2r+1)xHxW
+        x0 = self.dec0(torch.cat([self.up0(x1), x_left, local0, d0_init / self.disp_unit], dim=1))
+        d0 = d0_init + self.pred0(x0) * self.refine_unit
         return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2},
                              matched=d_match)
 

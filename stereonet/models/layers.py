@@ -22,6 +22,11 @@ def conv_block(in_channels: int, out_channels: int, kernel_size: int = 3, stride
     )
 
 
+def conv3d_block(in_channels: int, out_channels: int) -> nn.Sequential:
+    """3x3x3 Conv3d ("same" padding) + LeakyReLU(0.1), for cost volumes :math:`(B, C, D, H, W)`."""
+    return nn.Sequential(nn.Conv3d(in_channels, out_channels, 3, padding=1), nn.LeakyReLU(0.1, inplace=True))
+
+
 def upconv_block(in_channels: int, out_channels: int) -> nn.Sequential:
     """x2 transposed-conv upsampling followed by LeakyReLU(0.1): (B, Cin, H, W) -> (B, Cout, 2H, 2W)."""
     return nn.Sequential(
@@ -66,6 +71,33 @@ def correlation_1d(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: 
     similarity = feat_left.new_zeros(b, max_disp + 1, h, w)  # BxDxHxW
     for d in range(min(max_disp + 1, w)):
         similarity[:, d, :, d:] = (feat_left[..., d:] * feat_right[..., : w - d]).mean(dim=1)
+    return similarity
+
+
+def group_correlation_1d(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int,
+                         groups: int) -> torch.Tensor:
+    """Group-wise 1-D correlation (GwcNet): the channels split into ``groups``, one correlation per group.
+
+    ``similarity[b, g, d, y, x] = mean_{c in group g} feat_left[b, c, y, x] * feat_right[b, c, y, x - d]``,
+    0 where ``x - d < 0``; its mean over groups is :func:`correlation_1d`.
+
+    Args:
+        feat_left, feat_right: :math:`(B, C, H, W)`, C divisible by ``groups``.
+        max_disp: largest disparity in pixels of this feature scale; D = max_disp + 1 levels.
+
+    Returns:
+        similarity :math:`(B, G, D, H, W)`.
+    """
+    if feat_left.shape != feat_right.shape:
+        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
+    b, c, h, w = feat_left.shape
+    if c % groups:
+        raise StereoInputError(f"groups: expected a divisor of the {c} feature channels, got {groups}")
+    fl = feat_left.view(b, groups, c // groups, h, w)  # BxGx(C/G)xHxW
+    fr = feat_right.view(b, groups, c // groups, h, w)
+    similarity = feat_left.new_zeros(b, groups, max_disp + 1, h, w)  # BxGxDxHxW
+    for d in range(min(max_disp + 1, w)):
+        similarity[:, :, d, :, d:] = (fl[..., d:] * fr[..., : w - d]).mean(dim=2)
     return similarity
 
 

@@ -155,13 +155,14 @@ class DispNetModule(StereoModule):
 
     def __init__(self, max_disp: int = 96, channels: int = 16, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000) -> None:
+                 schedule_steps: int = 5000, aggregation: str = "2d") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
-        self.model = DispNet(max_disp=max_disp, channels=channels)
+        self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation)
 
     def model_config(self) -> dict:
-        return {"max_disp": self.hparams.max_disp, "channels": self.hparams.channels}
+        hp = self.hparams
+        return {"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation}
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
@@ -194,17 +195,19 @@ class SMDModule(StereoModule):
 
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
-                 match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+                 match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
+                 aggregation: str = "2d") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
-        self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden))
+        self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation)
         if init_backbone:
             backbone, _ = load_weights(init_backbone, expected="dispnet")
             self.model.backbone.load_state_dict(backbone.state_dict())
 
     def model_config(self) -> dict:
         hp = self.hparams
-        return {"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden)}
+        return {"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden),
+                "aggregation": hp.aggregation}
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)

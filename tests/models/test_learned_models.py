@@ -7,7 +7,13 @@ import torch
 
 from stereonet.checks import StereoInputError
 from stereonet.models.dispnet import DispNet, DispNetOutput, predict_disparity
-from stereonet.models.layers import InputPadder, correlation_1d, local_correlation, unit_channels
+from stereonet.models.layers import (
+    InputPadder,
+    correlation_1d,
+    group_correlation_1d,
+    local_correlation,
+    unit_channels,
+)
 from stereonet.models.siamese import (
     INVALID_COST,
     SiameseNet,
@@ -105,6 +111,23 @@ def test_local_correlation_subpixel_is_linear_and_differentiable():
     disp = torch.full((1, 1, 2, 9), 1.3, dtype=torch.float64, requires_grad=True)
     fl.requires_grad_(True)
     assert torch.autograd.gradcheck(lambda a, d: local_correlation(a, fr, d, radius=1), (fl, disp))
+
+
+def test_group_correlation_means_to_correlation_and_aggregation_variants():
+    g = torch.Generator().manual_seed(5)
+    fl, fr = torch.rand(2, 8, 3, 10, generator=g), torch.rand(2, 8, 3, 10, generator=g)
+    gwc = group_correlation_1d(fl, fr, 4, groups=4)
+    assert gwc.shape == (2, 4, 5, 3, 10)
+    assert torch.allclose(gwc.mean(dim=1), correlation_1d(fl, fr, 4), atol=1e-6)
+    assert torch.allclose(gwc[:, 1, 2, :, 5], (fl[:, 2:4, :, 5] * fr[:, 2:4, :, 3]).mean(dim=1), atol=1e-6)
+    left, right = torch.rand(1, 3, 32, 48, generator=g), torch.rand(1, 3, 32, 48, generator=g)
+    for aggregation in ("2d", "3d"):
+        out = DispNet(max_disp=16, channels=8, aggregation=aggregation)(left, right)
+        assert out.disparity.shape == (1, 1, 32, 48) and torch.isfinite(out.disparity).all()
+    with pytest.raises(ValueError, match="aggregation"):
+        DispNet(aggregation="4d")
+    with pytest.raises(ValueError, match="groups"):
+        DispNet(channels=8, groups=3)
 
 
 def test_unit_channels_equals_normalize():
