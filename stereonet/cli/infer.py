@@ -44,9 +44,9 @@ from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail, we
 
 PROG = "infer.py"
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
-# Preference order for the default method: learned (when weights exist), then our SGM, then OpenCV's. Among
-# the learned ones, the order of their real-pair bad-2 in BENCHMARKS.md (siamese-sgm is the best of them).
-PREFERRED = ("siamese-sgm", "dispnet", "smd", "siamese", "sgm", "opencv-sgbm")
+# Preference order for the default method: the order of real-pair bad-2 in BENCHMARKS.md. Our `sgm` is the
+# most accurate there and among the fastest; the learned ones follow (used when their weights exist).
+PREFERRED = ("sgm", "siamese-sgm", "dispnet", "smd", "siamese", "opencv-sgbm")
 MAX_DISP_CAP = 256
 MIN_MATCHES = 8
 MARGIN = 1.2  # automatic max_disp = largest match disparity * MARGIN + 4 px, rounded up to 16
@@ -91,7 +91,7 @@ def find_pairs(left: str, right: str) -> list[Pair]:
 
 
 def default_method() -> str:
-    """The best available method: a learned one with weights, else sgm, else opencv-sgbm."""
+    """The best available method in PREFERRED order (learned ones only when their weights exist)."""
     from stereonet import matchers
 
     names = matchers.available()
