@@ -658,3 +658,57 @@ def ground_truth_maps(w, h, ids_l, depth_l, corr, z_r, hidden_l, ids_r, depth_r,
             ok = ok and dr > 0
         valid_r[i] = ok
         disp_r[i] = dr if ok else 0.0
+
+
+@numba.njit(cache=True)
+def edge_subsamples(edges, s):  # pragma: no cover - compiled
+    """Flat indices :math:`(M,)` of the ``edges`` pixels and the pixel coordinates :math:`(M s^2, 2)` of their
+    ``s x s`` sub-samples at offsets ``(k + 1/2) / s - 1/2`` (row-major within each pixel)."""
+    h, w = edges.shape
+    m = 0
+    for r in range(h):
+        for c in range(w):
+            if edges[r, c]:
+                m += 1
+    index = np.empty(m, dtype=np.int64)
+    pix = np.empty((m * s * s, 2))
+    j = 0
+    for r in range(h):
+        for c in range(w):
+            if edges[r, c]:
+                index[j] = r * w + c
+                for a in range(s):
+                    for b in range(s):
+                        q = (j * s + a) * s + b
+                        pix[q, 0] = c + (b + 0.5) / s - 0.5
+                        pix[q, 1] = r + (a + 0.5) / s - 0.5
+                j += 1
+    return index, pix
+
+
+@numba.njit(cache=True)
+def pixel_dirs(M, pix):  # pragma: no cover - compiled
+    """Directions ``M (x, y, 1)`` :math:`(N, 3)` of the rays through pixel coordinates ``pix`` :math:`(N, 2)`."""
+    out = np.empty((pix.shape[0], 3))
+    for i in range(pix.shape[0]):
+        for j in range(3):
+            out[i, j] = M[j, 0] * pix[i, 0] + M[j, 1] * pix[i, 1] + M[j, 2]
+    return out
+
+
+@numba.njit(cache=True)
+def finish_image(rgb, index, sub_rgb, s2, out):  # pragma: no cover - compiled
+    """``out`` :math:`(H, W, 3)` float32 = ``rgb`` :math:`(H W, 3)` with pixels ``index`` replaced by the mean of
+    their ``s2`` sub-sample radiances ``sub_rgb`` :math:`(M s2, 3)`, clipped to [0, 1]."""
+    h, w = out.shape[0], out.shape[1]
+    for i in range(index.shape[0]):
+        for c in range(3):
+            acc = 0.0
+            for q in range(i * s2, (i + 1) * s2):
+                acc += sub_rgb[q, c]
+            rgb[index[i], c] = acc / s2
+    for r in range(h):
+        for col in range(w):
+            i = r * w + col
+            for c in range(3):
+                out[r, col, c] = min(max(rgb[i, c], 0.0), 1.0)

@@ -446,7 +446,7 @@ def render_view_arrays(scene: Scene, camera: Camera, supersample: int = 2, specu
     float32 in [0, 1]; float64 ``t`` (depth), ``points``, ``normals`` :math:`(H W, 3)`, ``spec``, ``spec2``;
     int64 ``ids`` :math:`(H W,)`; bool ``edges`` :math:`(H, W)`; ``packed`` (the scene packed for this camera).
     """
-    from data_gen._kernels import edge_mask, pack_scene
+    from data_gen._kernels import edge_mask, edge_subsamples, finish_image, pack_scene, pixel_dirs
 
     s = int(supersample)
     w, h = camera.size
@@ -457,20 +457,16 @@ def render_view_arrays(scene: Scene, camera: Camera, supersample: int = 2, specu
     edges = np.zeros((h, w), dtype=np.bool_)
     if s > 1:
         edge_mask(out["ids"].reshape(h, w), out["normals"], EDGE_CREASE, edges)
-    ey, ex = np.nonzero(edges)
-    if ey.size:
-        offsets = (np.arange(s, dtype=np.float64) + 0.5) / s - 0.5
-        oy, ox = np.meshgrid(offsets, offsets, indexing="ij")
-        sx = (ex[:, None] + ox.reshape(1, -1)).reshape(-1)  # (M*s*s,)
-        sy = (ey[:, None] + oy.reshape(1, -1)).reshape(-1)
+    index, pix = edge_subsamples(edges, s) if s > 1 else (np.zeros(0, dtype=np.int64), np.zeros((0, 2)))
+    sub_rgb = np.zeros((0, 3))
+    if index.size:
         if camera.dist is None:
-            M = camera.R.T @ np.linalg.inv(camera.K)
-            dirs = sx[:, None] * M[:, 0] + sy[:, None] * M[:, 1] + M[:, 2]
+            dirs = pixel_dirs(camera.R.T @ np.linalg.inv(camera.K), pix)
         else:
-            dirs = _pixel_rays(camera, torch.from_numpy(sx), torch.from_numpy(sy)).numpy()
-        sub = _kernel_trace(scene, camera, packed, dirs, np.stack([sx, sy], -1), 1.0 / (s * f), specular)
-        rgb[ey * w + ex] = sub["rgb"].reshape(-1, s * s, 3).mean(1)
-    out["rgb"] = np.clip(rgb, 0.0, 1.0).astype(np.float32).reshape(h, w, 3)
+            dirs = _pixel_rays(camera, torch.from_numpy(pix[:, 0]), torch.from_numpy(pix[:, 1])).numpy()
+        sub_rgb = _kernel_trace(scene, camera, packed, dirs, pix, 1.0 / (s * f), specular)["rgb"]
+    out["rgb"] = np.empty((h, w, 3), dtype=np.float32)
+    finish_image(rgb, index, sub_rgb, s * s, out["rgb"])
     out.update(edges=edges, packed=packed)
     return out
 
