@@ -586,6 +586,9 @@ def camera_response(img, out, gain, bias, gamma, vignetting, photometric, noise,
     for j in range(n_lut + 1):
         lut[j] = (j / n_lut) ** gamma
     lut[n_lut + 1] = 1.0
+    amp = np.empty(n_lut + 2)  # noise sqrt(0.25 + x) on the same grid
+    for j in range(n_lut + 2):
+        amp[j] = noise * math.sqrt(0.25 + min(j / n_lut, 1.0))
     for r in range(h):
         yy = (-1.0 + r * sy) ** 2
         for c in range(w):
@@ -600,7 +603,9 @@ def camera_response(img, out, gain, bias, gamma, vignetting, photometric, noise,
                         j = int(pos)
                         v = lut[j] + (pos - j) * (lut[j + 1] - lut[j])
                 if noise > 0:
-                    v += noise * math.sqrt(0.25 + v) * table[(offset + (ch * h + r) * w + c) & mask]
+                    pos = min(max(v, 0.0), 1.0) * n_lut
+                    j = int(pos)
+                    v += (amp[j] + (pos - j) * (amp[j + 1] - amp[j])) * table[(offset + (ch * h + r) * w + c) & mask]
                 out[ch, r, c] = min(max(v, 0.0), 1.0)
 
 
