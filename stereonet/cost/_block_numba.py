@@ -31,12 +31,11 @@ import numpy as np
 from numba import prange
 
 from stereonet.optimize._select_numba import (
-    first_argmin,
     is_unique,
     lr_check_row,
-    min_range,
+    select_row_t,
     subpixel_offset,
-    wta_right_row,
+    transpose_row,
 )
 
 ROW_BLOCK = 32
@@ -84,108 +83,95 @@ def ncc_cost(e_lr, mu_l, var_l, mu_r, var_r, min_var):
 
 
 @numba.njit(cache=True)
-def _pixel_costs(kind, x, y, L, CL, rrev, crev, lam_c, lam_a, tmp):
-    """tmp[d] = pixelwise cost of left (y, x) against right (y, max(x - d, 0)), d < D (float32).
+def _pixel_cost_row(kind, y, L, R, CL, CR, lam_c, lam_a, rrev, crev, out):
+    """out[x, d] = pixelwise cost of left (y, x) against right (y, max(x - d, 0)) (float32 (W, D)).
 
-    One loop over contiguous slices per pixel (non-negative indices: no wraparound code, so it vectorises);
-    colour costs are ``((c0 + c1) + c2) / 3`` (images have 1 or 3 channels)."""
-    D = tmp.shape[0]
-    C, _, W = L.shape
-    nv = min(x + 1, D)  # d < nv: right pixel inside the image
-    base = W - 1 - x
-    t = tmp[:nv]
-    if kind == KIND_PROD:
-        lv = L[0, y, x]
-        rr = rrev[0, base:base + nv]
-        for d in range(nv):
-            t[d] = lv * rr[d]
-    elif kind == KIND_HAMMING:
-        cr = crev[0, base:base + nv]
-        cv = CL[0, y, x]
-        for d in range(nv):
-            t[d] = np.float32(_popcount(cv ^ cr[d]))
-        for k in range(1, CL.shape[0]):
-            cv = CL[k, y, x]
-            cr = crev[k, base:base + nv]
-            for d in range(nv):
-                t[d] += np.float32(_popcount(cv ^ cr[d]))
-    else:
-        inv_c = np.float32(1.0 / C)
-        r0 = rrev[0, base:base + nv]
-        l0 = L[0, y, x]
-        if C == 1:
-            if kind == KIND_SQ:
-                for d in range(nv):
-                    v = l0 - r0[d]
-                    t[d] = (v * v) * inv_c
-            else:
-                for d in range(nv):
-                    t[d] = abs(l0 - r0[d]) * inv_c
-        else:
-            r1 = rrev[1, base:base + nv]
-            r2 = rrev[2, base:base + nv]
-            l1 = L[1, y, x]
-            l2 = L[2, y, x]
-            if kind == KIND_SQ:
-                for d in range(nv):
-                    v0 = l0 - r0[d]
-                    v1 = l1 - r1[d]
-                    v2 = l2 - r2[d]
-                    t[d] = ((v0 * v0 + v1 * v1) + v2 * v2) * inv_c
-            else:
-                for d in range(nv):
-                    t[d] = ((abs(l0 - r0[d]) + abs(l1 - r1[d])) + abs(l2 - r2[d])) * inv_c
-        if kind == KIND_CENSUS_AD:
-            for d in range(nv):
-                n = np.uint64(0)
-                for k in range(CL.shape[0]):
-                    n += _popcount(CL[k, y, x] ^ crev[k, base + d])
-                t[d] = (np.float32(2.0) - np.exp(-np.float32(n) / lam_c)) - np.exp(-t[d] / lam_a)
-    last = tmp[nv - 1]
-    for d in range(nv, D):  # x - d < 0: the border column, the same as d = x
-        tmp[d] = last
-
-
-@numba.njit(cache=True)
-def _prepare_row(kind, y, R, CR, rrev, crev):
-    """Reversed right rows of image row y for :func:`_pixel_costs`."""
+    Per pixel one loop over contiguous slices of the reversed right row (non-negative indices: no
+    wraparound code, so it vectorises); colour costs are ``((c0 + c1) + c2) / 3`` (1 or 3 channels)."""
     if kind == KIND_HAMMING or kind == KIND_CENSUS_AD:
         _reverse_row(CR, y, crev)
     if kind != KIND_HAMMING:
         _reverse_row(R, y, rrev)
+    W, D = out.shape
+    C = L.shape[0]
+    inv_c = np.float32(1.0 / C)
+    for x in range(W):
+        nv = min(x + 1, D)  # d < nv: right pixel inside the image
+        base = W - 1 - x
+        t = out[x, :nv]
+        if kind == KIND_PROD:
+            lv = L[0, y, x]
+            rr = rrev[0, base:base + nv]
+            for d in range(nv):
+                t[d] = lv * rr[d]
+        elif kind == KIND_HAMMING:
+            cr = crev[0, base:base + nv]
+            cv = CL[0, y, x]
+            for d in range(nv):
+                t[d] = np.float32(_popcount(cv ^ cr[d]))
+            for k in range(1, CL.shape[0]):
+                cv = CL[k, y, x]
+                cr = crev[k, base:base + nv]
+                for d in range(nv):
+                    t[d] += np.float32(_popcount(cv ^ cr[d]))
+        else:
+            r0 = rrev[0, base:base + nv]
+            l0 = L[0, y, x]
+            if C == 1:
+                if kind == KIND_SQ:
+                    for d in range(nv):
+                        v = l0 - r0[d]
+                        t[d] = (v * v) * inv_c
+                else:
+                    for d in range(nv):
+                        t[d] = abs(l0 - r0[d]) * inv_c
+            else:
+                r1 = rrev[1, base:base + nv]
+                r2 = rrev[2, base:base + nv]
+                l1 = L[1, y, x]
+                l2 = L[2, y, x]
+                if kind == KIND_SQ:
+                    for d in range(nv):
+                        v0 = l0 - r0[d]
+                        v1 = l1 - r1[d]
+                        v2 = l2 - r2[d]
+                        t[d] = ((v0 * v0 + v1 * v1) + v2 * v2) * inv_c
+                else:
+                    for d in range(nv):
+                        t[d] = ((abs(l0 - r0[d]) + abs(l1 - r1[d])) + abs(l2 - r2[d])) * inv_c
+            if kind == KIND_CENSUS_AD:
+                for d in range(nv):
+                    n = np.uint64(0)
+                    for k in range(CL.shape[0]):
+                        n += _popcount(CL[k, y, x] ^ crev[k, base + d])
+                    t[d] = (np.float32(2.0) - np.exp(-np.float32(n) / lam_c)) - np.exp(-t[d] / lam_a)
+        o = out[x]
+        last = o[nv - 1]
+        for d in range(nv, D):  # x - d < 0: the border column, the same as d = x
+            o[d] = last
 
 
 @numba.njit(cache=True)
-def _slide_rows(colsum, kind, y_in, y_out, L, R, CL, CR, lam_c, lam_a, rrev, crev, rrev2, crev2, tmp, tmp2):
-    """colsum[x, d] += cost(y_in) - cost(y_out) (float32); a row index < 0 means no such row."""
-    if y_in >= 0:
-        _prepare_row(kind, y_in, R, CR, rrev, crev)
-    if y_out >= 0:
-        _prepare_row(kind, y_out, R, CR, rrev2, crev2)
+def _slide_rows(colsum, kind, y_in, y_out, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in, buf_out):
+    """colsum += cost row y_in - cost row y_out (float32, elementwise); a row index < 0 = no such row."""
     W, D = colsum.shape
+    if y_in >= 0:
+        _pixel_cost_row(kind, y_in, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in)
+    if y_out >= 0:
+        _pixel_cost_row(kind, y_out, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_out)
     for x in range(W):
         cs = colsum[x]
-        if y_in >= 0:
-            _pixel_costs(kind, x, y_in, L, CL, rrev, crev, lam_c, lam_a, tmp)
-        if y_out >= 0:
-            _pixel_costs(kind, x, y_out, L, CL, rrev2, crev2, lam_c, lam_a, tmp2)
+        a = buf_in[x]
+        b = buf_out[x]
         if y_in >= 0 and y_out >= 0:
             for d in range(D):
-                cs[d] += tmp[d] - tmp2[d]
+                cs[d] += a[d] - b[d]
         elif y_in >= 0:
             for d in range(D):
-                cs[d] += tmp[d]
+                cs[d] += a[d]
         else:
             for d in range(D):
-                cs[d] -= tmp2[d]
-
-
-@numba.njit(cache=True)
-def _cost_row(kind, y, L, R, CL, CR, lam_c, lam_a, rrev, crev, out):
-    """out[x, d] = pixel cost of row y (window 1)."""
-    _prepare_row(kind, y, R, CR, rrev, crev)
-    for x in range(out.shape[0]):
-        _pixel_costs(kind, x, y, L, CL, rrev, crev, lam_c, lam_a, out[x])
+                cs[d] -= b[d]
 
 
 @numba.njit(cache=True)
@@ -248,41 +234,17 @@ def _multiwindow_row(a_top, a_mid, a_bot, r, out):
 
 
 @numba.njit(cache=True)
-def _select_row(row, y, method, keep, use_unique, disp, min_cost, unique, disp_int, strip):
-    """Left-reference selection of one cost row (W, D). Pixels x >= D - 1 are final; for x < D - 1
-    (some d > x outside the image, cost = max(volume) + 1, not known yet) strip[x] keeps
-    (second best in the image, c(bi - 1), c(bi + 1) if in the image, bi) for finish_border_selection."""
+def _row_max(row, acc):
+    """max of a (W, D) row: elementwise maxima over x into acc (D,) (vectorised), then over d."""
     W, D = row.shape
-    for x in range(W):
-        c = row[x]
-        nv = min(x + 1, D)
-        best, bi = first_argmin(c, nv)
-        min_cost[y, x] = best
-        disp_int[x] = bi
-        second = np.float32(np.inf)
-        if use_unique:
-            second = min(min_range(c, 0, bi - 1), min_range(c, bi + 2, nv))
-        if nv == D:
-            if use_unique:
-                unique[y, x] = is_unique(best, second, keep)
-            off = np.float32(0.0)
-            if method > 0 and 0 < bi < D - 1:
-                off = subpixel_offset(best, c[bi - 1], c[bi + 1], method)
-            disp[y, x] = np.float32(bi) + off
-        else:
-            strip[y, x, 0] = second
-            strip[y, x, 1] = c[bi - 1] if bi > 0 else np.float32(0.0)
-            strip[y, x, 2] = c[bi + 1] if bi + 1 < nv else np.float32(0.0)
-            strip[y, x, 3] = bi
-
-
-@numba.njit(fastmath={"nnan", "nsz", "reassoc"}, inline="always")
-def _row_max(row):
-    m = np.float32(-np.inf)
-    W, D = row.shape
-    for x in range(W):
+    acc[:] = row[0]
+    for x in range(1, W):
+        r = row[x]
         for d in range(D):
-            m = max(m, row[x, d])
+            acc[d] = r[d] if r[d] > acc[d] else acc[d]
+    m = acc[0]
+    for d in range(1, D):
+        m = acc[d] if acc[d] > m else m
     return m
 
 
@@ -324,30 +286,32 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
         b = min(a + ROW_BLOCK, H)
         colsum = np.zeros((W, D), np.float32)
         hs = np.empty(D, np.float32)
-        tmp = np.empty(D, np.float32)
-        tmp2 = np.empty(D, np.float32)
         rrev = np.empty((C, W), np.float32)
-        rrev2 = np.empty((C, W), np.float32)
         crev = np.empty((CL.shape[0], W), np.uint64)
-        crev2 = np.empty((CL.shape[0], W), np.uint64)
+        buf_in = np.empty((W, D), np.float32)
+        buf_out = np.empty((W, D), np.float32)
         ring = np.empty((n_ring, W, D), np.float32)
         out = np.empty((W, D), np.float32)
         vmin = np.empty((W, D), np.float32)
         dint = np.empty(W, np.float32)
+        T = np.empty((D, W) if sel else (1, 1), np.float32)
+        best = np.empty(W, np.float32)
+        bi = np.empty(W, np.int64)
+        second = np.empty(W, np.float32)
+        best_r = np.empty(W, np.float32)
         s = max(a - R_post, 0)
         e = min(b + R_post, H)
         for ya in range(s, e):
             agg = ring[ya % n_ring]
             if r == 0:
-                _cost_row(kind, ya, L, R, CL, CR, lam_c, lam_a, rrev, crev, agg)
+                _pixel_cost_row(kind, ya, L, R, CL, CR, lam_c, lam_a, rrev, crev, agg)
             elif ya == s:
                 colsum[:] = 0.0
                 for yy in range(max(ya - r, 0), min(ya + r, H - 1) + 1):
-                    _slide_rows(colsum, kind, yy, -1, L, R, CL, CR, lam_c, lam_a, rrev, crev, rrev2, crev2,
-                                tmp, tmp2)
+                    _slide_rows(colsum, kind, yy, -1, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in, buf_out)
             else:
                 _slide_rows(colsum, kind, ya + r if ya + r < H else -1, ya - r - 1, L, R, CL, CR, lam_c, lam_a,
-                            rrev, crev, rrev2, crev2, tmp, tmp2)
+                            rrev, crev, buf_in, buf_out)
             if r > 0:
                 _box_row(colsum, r, min(ya + r, H - 1) - max(ya - r, 0) + 1, hs, agg)
             if post == POST_NCC:
@@ -377,10 +341,11 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
                     row = out
                 else:
                     row = ring[y % n_ring]
-                row_max[y] = _row_max(row)
+                row_max[y] = _row_max(row, hs)
                 if sel:
-                    _select_row(row, y, method, keep, ratio > 0, disp, min_cost, unique, dint, strip)
-                    wta_right_row(row, disp_right[y])
+                    transpose_row(row, T)
+                    select_row_t(T, y, method, keep, ratio > 0, True, disp, min_cost, unique, dint, strip,
+                                 disp_right, best, bi, second, best_r)
                     if lr_tol >= 0:
                         lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
                 else:

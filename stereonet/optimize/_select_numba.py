@@ -9,15 +9,6 @@ import numpy as np
 from numba import prange
 
 
-@numba.njit(fastmath={"nnan", "nsz", "reassoc"}, inline="always")
-def min_range(c, lo, hi):
-    """min of c[lo:hi] (+inf when empty); vectorised (the volume holds no NaN)."""
-    m = np.float32(3.4e38)
-    for d in range(max(lo, 0), hi):
-        m = min(m, c[d])
-    return m if hi > max(lo, 0) else np.float32(np.inf)
-
-
 @numba.njit(inline="always")
 def wta_right_row(row, out):
     """Right-reference WTA of one row (W, D) into out (W,), ties to the smallest disparity.
@@ -37,16 +28,6 @@ def wta_right_row(row, out):
             take = v < b
             best[xr] = v if take else b
             out[xr] = fd if take else out[xr]
-
-
-@numba.njit(inline="always")
-def first_argmin(c, n):
-    """(min of c[:n], first index of it); ties resolve to the smallest index."""
-    best = min_range(c, 0, n)
-    bi = 0
-    while c[bi] != best:
-        bi += 1
-    return best, bi
 
 
 @numba.njit(inline="always")
@@ -89,31 +70,31 @@ def select_hwd(vol, method, ratio, lr_tol):
     Returns: disp (H, W) float32 (refined), min_cost (H, W) float32, unique (H, W) bool,
     disp_right (H, W) float32 (integer-valued right-reference WTA, ties to the smallest disparity),
     lr_ok (H, W) bool (:func:`stereonet.optimize.lr_check.left_right_check` of the integer WTA disparity
-    and disp_right, i.e. before sub-pixel refinement).
+    and disp_right, i.e. before sub-pixel refinement). Each row is transposed to (D, W) and selected by
+    :func:`select_row_t`.
     """
     H, W, D = vol.shape
     disp = np.empty((H, W), np.float32)
-    disp_int = np.empty((H, W), np.float32)
     min_cost = np.empty((H, W), np.float32)
     unique = np.ones((H, W), np.bool_)
     disp_right = np.zeros((H, W), np.float32)
     lr_ok = np.ones((H, W), np.bool_)
     keep = np.float32(1.0 - ratio)
-    for y in prange(H):
-        for x in range(W):
-            c = vol[y, x]
-            best, bi = first_argmin(c, D)
-            if ratio > 0:
-                unique[y, x] = is_unique(best, min(min_range(c, 0, bi - 1), min_range(c, bi + 2, D)), keep)
-            min_cost[y, x] = best
-            off = np.float32(0.0)
-            if method > 0 and 0 < bi < D - 1:
-                off = subpixel_offset(best, c[bi - 1], c[bi + 1], method)
-            disp[y, x] = np.float32(bi) + off
-            disp_int[y, x] = bi
-        wta_right_row(vol[y], disp_right[y])
-        if lr_tol >= 0:
-            lr_check_row(disp_int[y], disp_right[y], lr_ok[y], lr_tol)
+    n_chunks = min(H, 64)  # row chunks (per-chunk buffers), plenty for any thread count
+    for chunk in prange(n_chunks):
+        T = np.empty((D, W), np.float32)
+        dint = np.empty(W, np.float32)
+        best = np.empty(W, np.float32)
+        bi = np.empty(W, np.int64)
+        second = np.empty(W, np.float32)
+        best_r = np.empty(W, np.float32)
+        strip = np.zeros((1, 1, 4), np.float32)
+        for y in range(chunk * H // n_chunks, (chunk + 1) * H // n_chunks):
+            transpose_row(vol[y], T)
+            select_row_t(T, y, method, keep, ratio > 0, False, disp, min_cost, unique, dint, strip, disp_right,
+                         best, bi, second, best_r)
+            if lr_tol >= 0:
+                lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
     return disp, min_cost, unique, disp_right, lr_ok
 
 
@@ -125,3 +106,82 @@ def wta_right_hwd(vol):
     for y in prange(H):
         wta_right_row(vol[y], disp_right[y])
     return disp_right
+
+
+@numba.njit(cache=True)
+def transpose_row(row, T):
+    """T[d, x] = row[x, d] for a (W, D) cost row (strided stores that stay in L1)."""
+    W, D = row.shape
+    for x in range(W):
+        r = row[x]
+        for d in range(D):
+            T[d, x] = r[d]
+
+
+@numba.njit(cache=True)
+def select_row_t(T, y, method, keep, use_unique, in_image_only, disp, min_cost, unique, disp_int, strip,
+                 disp_right, best, bi, second, best_r):
+    """Selection of one cost row given transposed, ``T`` (D, W): every loop runs along x (contiguous,
+    branch-free, vectorised). Rules of :func:`select_hwd` (first minimum, uniqueness over |d - bi| > 1,
+    sub-pixel fit) and :func:`wta_right_row`.
+
+    ``in_image_only``: only d <= x are candidates (the costs at d > x, outside the right image, are not
+    final yet): pixels x < D - 1 get their uniqueness/sub-pixel inputs in ``strip[y, x]`` (second best in
+    the image, c(bi - 1), c(bi + 1) if in the image, bi) for a later pass; otherwise (a filled volume)
+    every d is a candidate and every pixel is final. disp_int (W,) and the scratch rows best, bi (int64),
+    second, best_r (W,) are per-thread buffers.
+    """
+    D, W = T.shape
+    best[:] = T[0]
+    bi[:] = 0
+    for d in range(1, D):
+        lo = d if in_image_only else 0
+        t = T[d, lo:]
+        b = best[lo:]
+        k = bi[lo:]
+        for x in range(W - lo):
+            v = t[x]
+            take = v < b[x]
+            b[x] = v if take else b[x]
+            k[x] = d if take else k[x]
+    if use_unique:
+        second[:] = np.float32(np.inf)
+        for d in range(D):
+            lo = d if in_image_only else 0
+            t = T[d, lo:]
+            sc = second[lo:]
+            k = bi[lo:]
+            for x in range(W - lo):
+                far = (d + 1 < k[x]) | (d > k[x] + 1)
+                sc[x] = min(sc[x], t[x]) if far else sc[x]
+    for x in range(W):
+        nv = min(x + 1, D) if in_image_only else D
+        bx = bi[x]
+        bv = best[x]
+        min_cost[y, x] = bv
+        disp_int[x] = bx
+        cm = T[bx - 1, x] if bx > 0 else np.float32(0.0)
+        cp = T[bx + 1, x] if bx + 1 < nv else np.float32(0.0)
+        if nv == D:
+            if use_unique:
+                unique[y, x] = is_unique(bv, second[x], keep)
+            off = np.float32(0.0)
+            if method > 0 and 0 < bx < D - 1:
+                off = subpixel_offset(bv, cm, cp, method)
+            disp[y, x] = np.float32(bx) + off
+        else:
+            strip[y, x, 0] = second[x]
+            strip[y, x, 1] = cm
+            strip[y, x, 2] = cp
+            strip[y, x, 3] = bx
+    # right-reference WTA: candidates of right pixel xr are T[d, xr + d] (contiguous in xr)
+    best_r[:] = T[0]
+    out = disp_right[y]
+    out[:] = 0
+    for d in range(1, min(D, W)):
+        t = T[d, d:]
+        for xr in range(W - d):
+            v = t[xr]
+            take = v < best_r[xr]
+            best_r[xr] = v if take else best_r[xr]
+            out[xr] = np.float32(d) if take else out[xr]

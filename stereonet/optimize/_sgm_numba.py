@@ -32,12 +32,33 @@ def _step(c_row, prev, m, P1, pen2, out, s_row):
     for d in range(n):
         t = min(min(prev[d + 1], prev[d] + P1), min(prev[d + 2] + P1, big))
         out[d + 1] = c_row[d] + (t - m)
-    new_min = _INF
+    o = out[1:n + 1]
     for d in range(n):
-        v = out[d + 1]
-        s_row[d] += v
-        new_min = min(new_min, v)
-    return new_min
+        s_row[d] += o[d]
+    return min_of(o)
+
+
+@numba.njit(fastmath=True, inline="always")
+def min_of(a):
+    """min of a 1-D float array with eight independent accumulators (no serial dependency chain; min is
+    exact, so the result equals the plain loop's)."""
+    n = a.shape[0]
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = _INF
+    i = 0
+    while i + 8 <= n:
+        m0 = min(m0, a[i])
+        m1 = min(m1, a[i + 1])
+        m2 = min(m2, a[i + 2])
+        m3 = min(m3, a[i + 3])
+        m4 = min(m4, a[i + 4])
+        m5 = min(m5, a[i + 5])
+        m6 = min(m6, a[i + 6])
+        m7 = min(m7, a[i + 7])
+        i += 8
+    while i < n:
+        m0 = min(m0, a[i])
+        i += 1
+    return min(min(min(m0, m1), min(m2, m3)), min(min(m4, m5), min(m6, m7)))
 
 
 @numba.njit(fastmath=True, nogil=True, cache=True)
@@ -69,13 +90,11 @@ def _sweep(C, S, P1, p2, dirs, downward):
                     ps = yp % 3
                     M[g, slot, x] = _step(c_row, L[g, ps, xp], M[g, ps, xp], P1, p2[g, y, x], out, s_row)
                 else:
-                    m = _INF
                     for d in range(D):
                         v = c_row[d]
                         out[d + 1] = v
                         s_row[d] += v
-                        m = min(m, v)
-                    M[g, slot, x] = m
+                    M[g, slot, x] = min_of(c_row)
 
 
 @numba.njit(parallel=True, cache=True)

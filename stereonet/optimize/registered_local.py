@@ -22,7 +22,7 @@ import torch
 
 from stereonet.checks import check_window
 from stereonet.cost import build_cost_volume
-from stereonet.cost.volume import use_numba
+from stereonet.cost.volume import build_cost_volume_checked, use_numba
 from stereonet.matchers import register
 from stereonet.optimize.fill import fill_occlusions
 from stereonet.optimize.filters import median_filter, speckle_filter
@@ -144,8 +144,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     cost_name, window = cost_opts.pop("cost"), cost_opts.pop("window")
     if cost_name not in ("census", "census_ad"):
         cost_opts.pop("census_window", None)
-    vol = build_cost_volume(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
-    # left was validated by build_cost_volume just above
+    # the registry validated left/right: no second check of the images
+    vol = build_cost_volume_checked(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
     agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, _guide_checked=True)
     del vol
     return select_and_filter(agg, **back)
