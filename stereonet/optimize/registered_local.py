@@ -6,6 +6,11 @@ check of the integer WTA against the right-reference WTA of the same volume (``|
 left invalid (``fill=False``; eval.py has ``--fill``). ``sgm`` adds semi-global aggregation of a census
 (or AD-census) cost before the selection, and a median + speckle filter after it.
 
+Speed: on the CPU (float32, no gradient) ``bm-*`` never builds the volume: one fused numba pass per image
+slides the window sums along the rows and selects on each finished cost row
+(:func:`~stereonet.optimize.wta.block_select_checked`, tested equal to the volume path), so the output has
+``cost_volume=None`` unless ``keep_volume=True``. Inputs are checked once, by the matcher registry.
+
 ``sgm`` defaults: :data:`SGM_DEFAULTS`, chosen on the six real pairs of ../shared/data against opencv-sgbm
 with ``scripts/bench_classical.py``. Candidates tried (bad-2 %, all pixels, filled; tsukuba / venus / cones /
 teddy / kitti2012 / kitti2015): census 5x5, P1=1, P2=8 constant: 4.78 / 1.18 / 7.26 / 8.00 / 10.60 / 15.22
