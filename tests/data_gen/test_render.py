@@ -238,10 +238,10 @@ RANGE_TOL = 0.01  # relative slack on max_disp
 @pytest.mark.parametrize("rectified", [True, False])
 def test_both_disparity_maps_stay_in_range_over_many_scenes(rectified):
     """Every surface lies in front of both cameras with f B / z <= max_disp (regression: objects near the
-    right camera and side walls tilted past it gave right-view disparities in the thousands)."""
+    right camera and side walls tilted past it gave right-view disparities in the thousands); 80 scenes."""
     h, w = 24, 64
     for difficulty in range(data_gen.MAX_DIFFICULTY + 1):
-        for index in range(12):
+        for index in range(8):
             p = data_gen.render_pair(3, index, difficulty=difficulty, height=h, width=w, rectified=rectified,
                                      supersample=1, noise=False, photometric=False, blur=False)
             rig, md = p["rig"], p["max_disp"]
