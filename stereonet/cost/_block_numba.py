@@ -2,7 +2,7 @@
 
 One engine computes the window-aggregated cost row by row, the way OpenCV's block matcher does: per
 image row it keeps the vertical window sums of the pixelwise cost for every ``(x, d)`` (updated from row
-to row: add the row entering the window, subtract the one leaving it) and slides a horizontal window sum
+to row: add the row entering the window, subtract the one leaving it, kept in a ring of rows) and slides a horizontal window sum
 along the row, so each ``(x, d)`` costs O(1) whatever the window. The finished ``(W, D)`` cost row then
 goes either
 
@@ -152,24 +152,36 @@ def _pixel_cost_row(kind, y, L, R, CL, CR, lam_c, lam_a, rrev, crev, out):
 
 
 @numba.njit(cache=True)
-def _slide_rows(colsum, kind, y_in, y_out, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in, buf_out):
-    """colsum += cost row y_in - cost row y_out (float32, elementwise); a row index < 0 = no such row."""
+def _slide_rows(colsum, kind, y_in, y_out, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in, ring):
+    """colsum += cost row y_in - cost row y_out (float32, elementwise); a row index < 0 = no such row.
+
+    ``ring`` (window, W, D) holds the pixel-cost rows inside the window at slot ``y % window``: the
+    leaving row is read from it (never recomputed) and the entering row, computed once, replaces it."""
     W, D = colsum.shape
-    if y_in >= 0:
+    n = ring.shape[0]
+    if y_in >= 0 and y_out >= 0:
         _pixel_cost_row(kind, y_in, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in)
-    if y_out >= 0:
-        _pixel_cost_row(kind, y_out, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_out)
-    for x in range(W):
-        cs = colsum[x]
-        a = buf_in[x]
-        b = buf_out[x]
-        if y_in >= 0 and y_out >= 0:
+        old = ring[y_out % n]
+        for x in range(W):
+            cs = colsum[x]
+            a = buf_in[x]
+            b = old[x]
             for d in range(D):
                 cs[d] += a[d] - b[d]
-        elif y_in >= 0:
+                b[d] = a[d]
+    elif y_in >= 0:
+        new = ring[y_in % n]
+        _pixel_cost_row(kind, y_in, L, R, CL, CR, lam_c, lam_a, rrev, crev, new)
+        for x in range(W):
+            cs = colsum[x]
+            a = new[x]
             for d in range(D):
                 cs[d] += a[d]
-        else:
+    elif y_out >= 0:
+        old = ring[y_out % n]
+        for x in range(W):
+            cs = colsum[x]
+            b = old[x]
             for d in range(D):
                 cs[d] -= b[d]
 
@@ -289,7 +301,7 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
         rrev = np.empty((C, W), np.float32)
         crev = np.empty((CL.shape[0], W), np.uint64)
         buf_in = np.empty((W, D), np.float32)
-        buf_out = np.empty((W, D), np.float32)
+        pring = np.empty((window if r > 0 else 1, W, D), np.float32)  # pixel-cost rows in the window
         ring = np.empty((n_ring, W, D), np.float32)
         out = np.empty((W, D), np.float32)
         vmin = np.empty((W, D), np.float32)
@@ -308,10 +320,10 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
             elif ya == s:
                 colsum[:] = 0.0
                 for yy in range(max(ya - r, 0), min(ya + r, H - 1) + 1):
-                    _slide_rows(colsum, kind, yy, -1, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in, buf_out)
+                    _slide_rows(colsum, kind, yy, -1, L, R, CL, CR, lam_c, lam_a, rrev, crev, buf_in, pring)
             else:
                 _slide_rows(colsum, kind, ya + r if ya + r < H else -1, ya - r - 1, L, R, CL, CR, lam_c, lam_a,
-                            rrev, crev, buf_in, buf_out)
+                            rrev, crev, buf_in, pring)
             if r > 0:
                 _box_row(colsum, r, min(ya + r, H - 1) - max(ya - r, 0) + 1, hs, agg)
             if post == POST_NCC:
