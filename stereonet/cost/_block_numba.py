@@ -69,20 +69,6 @@ def _reverse_row(src, y, dst):
 
 
 @numba.njit(cache=True)
-def ncc_cost(e_lr, mu_l, var_l, mu_r, var_r, min_var):
-    """``1 - NCC`` from the window means; NCC := 0 where a variance is <= min_var, clipped to [-1, 1]."""
-    if var_l > min_var and var_r > min_var:
-        ncc = (e_lr - mu_l * mu_r) / np.sqrt(var_l * var_r)
-        if ncc > 1.0:
-            ncc = 1.0
-        elif ncc < -1.0:
-            ncc = -1.0
-    else:
-        ncc = 0.0
-    return 1.0 - ncc
-
-
-@numba.njit(cache=True)
 def _pixel_cost_row(kind, y, L, R, CL, CR, lam_c, lam_a, rrev, crev, out):
     """out[x, d] = pixelwise cost of left (y, x) against right (y, max(x - d, 0)) (float32 (W, D)).
 
@@ -216,12 +202,30 @@ def _box_row(colsum, r, ny, hs, out):
 
 
 @numba.njit(cache=True)
-def _ncc_row(row, y, mu_l, var_l, mu_r, var_r, min_var):
+def _ncc_row(row, y, mu_l, isd_l, mu_r, isd_r, rev):
+    """In place: window means E[l r] -> ``1 - clip((E[l r] - mu_l mu_r) * isd_l * isd_r, -1, 1)`` with
+    ``isd = 1 / sqrt(var)`` (0 where the variance is too small: NCC := 0, cost 1). rev: (2, W) scratch for
+    the reversed right maps (contiguous in d, vectorised)."""
     W, D = row.shape
+    for j in range(W):
+        rev[0, j] = mu_r[y, W - 1 - j]
+        rev[1, j] = isd_r[y, W - 1 - j]
     for x in range(W):
-        for d in range(D):
-            xr = max(x - d, 0)
-            row[x, d] = ncc_cost(row[x, d], mu_l[y, x], var_l[y, x], mu_r[y, xr], var_r[y, xr], min_var)
+        nv = min(x + 1, D)
+        base = W - 1 - x
+        ml = mu_l[y, x]
+        il = isd_l[y, x]
+        mr = rev[0, base:base + nv]
+        ir = rev[1, base:base + nv]
+        e = row[x]
+        for d in range(nv):
+            ncc = (e[d] - ml * mr[d]) * (il * ir[d])
+            e[d] = np.float32(1.0) - min(max(ncc, np.float32(-1.0)), np.float32(1.0))
+        m0 = mu_r[y, 0]
+        i0 = isd_r[y, 0]
+        for d in range(nv, D):  # x - d < 0: the border column
+            ncc = (e[d] - ml * m0) * (il * i0)
+            e[d] = np.float32(1.0) - min(max(ncc, np.float32(-1.0)), np.float32(1.0))
 
 
 @numba.njit(cache=True)
@@ -262,7 +266,7 @@ def _row_max(row, acc):
 
 @numba.njit(parallel=True, cache=True)
 def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window, lam_c, lam_a,
-                    mu_l, var_l, mu_r, var_r, min_var, method, ratio, lr_tol):
+                    mu_l, isd_l, mu_r, isd_r, method, ratio, lr_tol):
     """The engine (see the module doc). Returns
     ``(vol, row_max, disp, min_cost, unique, disp_right, lr_ok, strip)``; ``vol`` (H, W, D) only for
     ``mode=0`` (else (1, 1, 1)), the selection arrays (H, W) only for ``mode=1`` (else (1, 1)).
@@ -272,8 +276,9 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
         kind: pixel cost (``KIND_*``); L, R: (C, H, W) float32 (grey for KIND_PROD); CL, CR: (K, H, W)
             uint64 census codes (K >= 1; unused ones may be (1, 1, 1)).
         n_disp: D; window: odd box window (1 = pixelwise).
-        post: ``POST_*`` applied to the window means (NCC normalisation with mu/var (H, W) float32 maps,
-            or a multi/shiftable window of size post_window).
+        post: ``POST_*`` applied to the window means (NCC normalisation with the window means mu and
+            ``isd = 1/sqrt(variance)`` (0 below the variance floor) (H, W) float32 maps, or a multi/shiftable
+            window of size post_window).
         method, ratio, lr_tol: selection as :func:`stereonet.optimize._select_numba.select_hwd`.
     """
     C, H, W = L.shape
@@ -299,6 +304,7 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
         colsum = np.zeros((W, D), np.float32)
         hs = np.empty(D, np.float32)
         rrev = np.empty((C, W), np.float32)
+        nrev = np.empty((2, W), np.float32)
         crev = np.empty((CL.shape[0], W), np.uint64)
         buf_in = np.empty((W, D), np.float32)
         pring = np.empty((window if r > 0 else 1, W, D), np.float32)  # pixel-cost rows in the window
@@ -327,7 +333,7 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
             if r > 0:
                 _box_row(colsum, r, min(ya + r, H - 1) - max(ya - r, 0) + 1, hs, agg)
             if post == POST_NCC:
-                _ncc_row(agg, ya, mu_l, var_l, mu_r, var_r, min_var)
+                _ncc_row(agg, ya, mu_l, isd_l, mu_r, isd_r, nrev)
             # output rows whose last needed window-mean row is ya
             y_lo = ya - R_post if ya < H - 1 else max(ya - R_post, a)
             y_hi = ya - R_post if ya < H - 1 else b - 1

@@ -177,6 +177,12 @@ def _box_np(img: np.ndarray, window: int) -> np.ndarray:
     return np.ascontiguousarray(hwc[:, :, 0] if img.ndim == 2 else hwc.transpose(2, 0, 1))
 
 
+def _inv_sd(var: np.ndarray) -> np.ndarray:
+    """1 / sqrt(var) where ``var > NCC_MIN_VARIANCE``, else 0 (NCC defined as 0 there), float32."""
+    ok = var > np.float32(NCC_MIN_VARIANCE)
+    return np.where(ok, np.float32(1.0) / np.sqrt(np.where(ok, var, np.float32(1.0))), np.float32(0.0)).astype(np.float32)
+
+
 _NO_CODES = np.zeros((1, 1, 1), np.uint64)
 _NO_MAP = np.zeros((1, 1), np.float32)
 
@@ -184,8 +190,7 @@ _NO_MAP = np.zeros((1, 1), np.float32)
 def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window: int, *,
                       census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
                       mode: str = "multiwindow", base: str = "sad") -> tuple:
-    """Arguments ``(kind, L, R, CL, CR, window, post, post_window, lam_c, lam_a, mu_l, var_l, mu_r, var_r,
-    min_var)`` of :func:`stereonet.cost._block_numba.block_cost_rows` for one pair ``(C, H, W)`` (inputs
+    """Arguments ``(kind, L, R, CL, CR, window, post, post_window, lam_c, lam_a, mu_l, isd_l, mu_r, isd_r)`` of :func:`stereonet.cost._block_numba.block_cost_rows` for one pair ``(C, H, W)`` (inputs
     already checked), i.e. the definition of ``cost`` as pixelwise cost + box window + post-processing."""
     from stereonet.cost import _block_numba as E
     from stereonet.cost._cost_numba import census_khw
@@ -214,7 +219,7 @@ def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window
         mu_l, mu_r = _box_np(gl, window), _box_np(gr, window)
         var_l = np.maximum(_box_np(gl * gl, window) - mu_l * mu_l, np.float32(0))
         var_r = np.maximum(_box_np(gr * gr, window) - mu_r * mu_r, np.float32(0))
-        maps = (mu_l, var_l, mu_r, var_r)
+        maps = (mu_l, _inv_sd(var_l), mu_r, _inv_sd(var_r))
     else:
         li, ri = _chw(left), _chw(right)
         squared = cost == "ssd" or (cost == "adaptive" and base == "ssd")
@@ -228,8 +233,7 @@ def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window
             post, post_window = (E.POST_MULTIWINDOW if mode == "multiwindow" else E.POST_SHIFTABLE), window
     box = 1 if cost == "ad" else window
     return (kind, np.ascontiguousarray(li, np.float32), np.ascontiguousarray(ri, np.float32), codes_l, codes_r,
-            box, post, post_window, np.float32(lambda_census), np.float32(lambda_ad), *maps,
-            np.float32(NCC_MIN_VARIANCE))
+            box, post, post_window, np.float32(lambda_census), np.float32(lambda_ad), *maps)
 
 
 def run_block_engine(mode: int, args: tuple, n_disp: int, method: int = 0, ratio: float = 0.0,
@@ -237,9 +241,9 @@ def run_block_engine(mode: int, args: tuple, n_disp: int, method: int = 0, ratio
     """Call :func:`stereonet.cost._block_numba.block_cost_rows` with :func:`numba_engine_args` ``args``."""
     from stereonet.cost._block_numba import block_cost_rows
 
-    kind, li, ri, cl, cr, box, post, post_window, lam_c, lam_a, mu_l, var_l, mu_r, var_r, min_var = args
+    kind, li, ri, cl, cr, box, post, post_window, lam_c, lam_a, mu_l, isd_l, mu_r, isd_r = args
     return block_cost_rows(mode, kind, li, ri, cl, cr, n_disp, box, post, post_window, lam_c, lam_a,
-                           mu_l, var_l, mu_r, var_r, min_var, method, float(ratio), float(lr_tol))
+                           mu_l, isd_l, mu_r, isd_r, method, float(ratio), float(lr_tol))
 
 
 def out_of_image_cost(row_maxima: list[np.ndarray]) -> np.float32:
