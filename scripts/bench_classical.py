@@ -1,13 +1,14 @@
 """Benchmark of the classical local matchers against OpenCV, in one process, under the same load.
 
     python scripts/bench_classical.py [--repeats 5] [--methods sgm,bm-sad,...] [--accuracy sgm,opencv-sgbm]
-                                      [--json FILE]
+                                      [--json FILE] [--cpu]
 
 1. Speed and memory on Middlebury 2003 Cones (450x375, 64 disparities = max_disp 63): every method runs
    ``--repeats`` times, the methods interleaved round by round (so a load change hits all of them), after
    one untimed warm-up call each (numba compilation). Reported: median wall seconds, the ratio to the OpenCV
    reference (``sgm`` -> ``opencv-sgbm``, ``bm-*`` -> ``opencv-bm``) and the peak extra resident memory of
-   one call (:class:`stereonet.cli.common.PeakMemory`).
+   one call (:class:`stereonet.cli.common.PeakMemory`). ``--cpu``: CPU seconds with one thread everywhere
+   (work ratios, for a machine busy with other jobs).
 2. Accuracy on every real pair of ../shared/data (``stereonet.data.load_dataset("real")``, each pair's own
    ``max_disp``): bad-2 over all pixels with ground truth after the shared textbook filling of invalid pixels
    (:func:`stereonet.optimize.fill.fill_occlusions`, as ``eval.py --fill``), plus the density before filling.
@@ -49,8 +50,8 @@ def load_cones() -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def time_methods(methods: list[str], left: torch.Tensor, right: torch.Tensor, max_disp: int,
-                 repeats: int) -> dict[str, dict]:
-    """Median seconds (interleaved rounds) and peak MiB of one call per method."""
+                 repeats: int, clock=time.perf_counter) -> dict[str, dict]:
+    """Median seconds of ``clock`` (interleaved rounds) and peak MiB of one call per method."""
     res: dict[str, dict] = {}
     for m in methods:  # warm-up (JIT) and memory
         matchers.match(m, left, right, max_disp)
@@ -59,9 +60,9 @@ def time_methods(methods: list[str], left: torch.Tensor, right: torch.Tensor, ma
         res[m] = {"times": [], "peak_mib": pm.peak_mib}
     for _ in range(repeats):
         for m in methods:
-            t = time.perf_counter()
+            t = clock()
             matchers.match(m, left, right, max_disp)
-            res[m]["times"].append(time.perf_counter() - t)
+            res[m]["times"].append(clock() - t)
     for r in res.values():
         r["seconds"] = statistics.median(r.pop("times"))
     for m, r in res.items():
@@ -88,8 +89,19 @@ def main(argv: list[str] | None = None) -> int:
                    help="methods to time on Cones (OpenCV references are added when needed)")
     p.add_argument("--accuracy", default="opencv-sgbm,sgm", help="methods for bad-2 on the real pairs ('' = skip)")
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--cpu", action="store_true",
+                   help="one thread everywhere (torch, numba, OpenCV) and CPU seconds (process_time) instead of "
+                        "wall seconds: work ratios that a busy machine distorts much less than wall-time ratios")
     args = p.parse_args(argv)
-    torch.set_num_threads(2)
+    torch.set_num_threads(1 if args.cpu else 2)
+    clock = time.perf_counter
+    if args.cpu:
+        import cv2
+        import numba
+
+        numba.set_num_threads(1)
+        cv2.setNumThreads(1)
+        clock = time.process_time
 
     methods = [m for m in args.methods.split(",") if m]
     for m in list(methods):
@@ -99,9 +111,9 @@ def main(argv: list[str] | None = None) -> int:
     report: dict = {"speed": {}, "accuracy": {}}
     if methods:
         left, right = load_cones()
-        report["speed"] = time_methods(methods, left, right, 63, args.repeats)
+        report["speed"] = time_methods(methods, left, right, 63, args.repeats, clock)
         print(f"Cones 450x375, 64 disparities, median of {args.repeats} interleaved runs, "
-              f"torch threads {torch.get_num_threads()}")
+              f"torch threads {torch.get_num_threads()}" + (", CPU seconds, one thread everywhere" if args.cpu else ""))
         print(f"{'method':14s} {'seconds':>9s} {'x ref':>7s} {'ref':>12s} {'peak MiB':>9s}")
         for m, r in report["speed"].items():
             ratio = "" if r["ratio"] is None else f"{r['ratio']:.2f}"
