@@ -52,8 +52,8 @@ numba edge detection and supersampling of the edge pixels, ground truth and the 
 pixel (:func:`render_view_arrays` skips the torch conversions). ``compiled=False`` (or
 ``data_gen.render.USE_KERNELS = False``) selects the vectorized torch reference they are tested against. An
 ``extra_light_fn`` always uses the torch path. Rendering runs torch single-threaded; parallelize over pairs
-(DataLoader workers). ``python -m data_gen --bench``: ~15 pairs/s per core at 256x512 (difficulty 4, >= 10
-objects, 2x supersampling), ~50 at 128x256.
+(DataLoader workers). ``python -m data_gen --bench``: 10.4-11.0 pairs/s per core at 256x512 (difficulty 4, 14.5
+objects, 2x supersampling; idle machine), ~50 at 128x256 (measured at load 4).
 """
 
 from data_gen.camera import Camera, GridRays, PointRays

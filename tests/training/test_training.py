@@ -214,7 +214,6 @@ def test_resume_from_last_checkpoint(tmp_path, monkeypatch):
 
 def test_sample_max_disp_widens_the_range_within_bounds():
     import data_gen
-
     from stereonet.training.data import sample_max_disp
 
     g = torch.Generator().manual_seed(0)
