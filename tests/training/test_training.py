@@ -169,7 +169,7 @@ def test_smd_loss_decreases_on_one_batch(one_thread):
     losses = []
     for _ in range(20):
         loss, pred, extra = module.compute(batch)
-        losses.append(float(loss))
+        losses.append(float(loss.detach()))
         opt.zero_grad()
         loss.backward()
         opt.step()
