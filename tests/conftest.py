@@ -17,6 +17,16 @@ torch.set_num_threads(2)
 
 
 @pytest.fixture
+def one_thread():
+    """Torch on one thread for the test: many tiny tensor ops (RANSAC batches, 3x3 solves, small networks)
+    run faster than with OpenMP hand-offs between two busy cores."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture
 def shared_data() -> Path:
     """../shared/data, or skip when the optional real data is absent."""
     if not SHARED_DATA.is_dir():

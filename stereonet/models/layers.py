@@ -121,13 +121,8 @@ def local_correlation(feat_left: torch.Tensor, feat_right: torch.Tensor, dispari
     """
     if feat_left.shape != feat_right.shape:
         raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
-    b, c, h, w = feat_left.shape
-    k = 2 * radius + 1
-    shifts = torch.arange(-radius, radius + 1, device=disparity.device, dtype=disparity.dtype).view(1, k, 1, 1)
-    disp_k = (disparity + shifts).reshape(b * k, 1, h, w)  # (B*K)x1xHxW
-    right_k = feat_right.repeat_interleave(k, dim=0)  # (B*K)xCxHxW
-    warped = warp_right(right_k, disp_k).view(b, k, c, h, w)
-    return (feat_left.unsqueeze(1) * warped).mean(dim=2)  # BxKxHxW
+    return torch.stack([(feat_left * warp_right(feat_right, disparity + s)).mean(dim=1)
+                        for s in range(-radius, radius + 1)], dim=1)  # BxKxHxW
 
 
 class InputPadder:

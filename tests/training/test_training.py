@@ -117,15 +117,6 @@ def _one_batch():
     return collate_pairs([ds[0], ds[1]])
 
 
-@pytest.fixture
-def one_thread():
-    """Tiny networks run faster on one thread (no spinning worker threads on a busy machine)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _fit(loss_fn, params, steps: int, lr: float) -> tuple[float, float]:
     opt = torch.optim.Adam(params, lr=lr)
     first = None
