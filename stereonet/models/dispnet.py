@@ -10,6 +10,12 @@ The 1/2 and 1/1 decoder stages also see a *local* correlation: shared features o
 by the upsampled coarser disparity, are correlated with the left features at ``±refine_radius`` pixels of
 that scale (as in the refinement stages of DispNet-CSS / PWC-Net), so the fine residuals are matched, not
 guessed from the image.
+With ``upsample="select"`` the coarse disparity is not upsampled bilinearly before those stages: each fine
+pixel chooses (softmax) among the 3x3 coarse neighbours of its parent cell and the bilinear value, by the
+correlation of the left features with the right ones warped by each candidate plus a learned context term
+(a PatchMatch/HITNet-style propagation written as a soft selection). A pixel beside a depth edge can then
+take the foreground's or the background's disparity instead of a blend of both, which is what makes edges
+sharp; the local-correlation residual follows as before.
 Every disparity in the output is in pixels of the *input* resolution, left-referenced.
 
 The network needs its input padded to a multiple of :attr:`DispNet.stride`; :func:`predict_disparity`
@@ -35,6 +41,7 @@ from stereonet.models.layers import (
     standardize_image,
     unit_channels,
     upconv_block,
+    warp_right,
 )
 
 
@@ -74,13 +81,15 @@ class DispNet(nn.Module):
             the disparities as channels) or "3d" (a group-wise correlation volume, ``groups`` groups,
             aggregated by three 3x3x3 convolutions as in GwcNet; much better matching for little time).
         groups: channel groups of the "3d" correlation.
+        upsample: how each coarser disparity reaches the 1/2 and 1/1 stages: "bilinear" or "select" (a
+            matched soft choice among the 3x3 coarse neighbours and the bilinear value; sharp edges).
     """
 
     stride = 16
     scales = (16, 8, 4, 2, 1)
 
     def __init__(self, max_disp: int = 96, channels: int = 16, refine_radius: int = 2,
-                 aggregation: str = "2d", groups: int = 4) -> None:
+                 aggregation: str = "2d", groups: int = 4, upsample: str = "bilinear") -> None:
         super().__init__()
         if max_disp < 4:
             raise ValueError(f"max_disp: expected >= 4, got {max_disp}")
@@ -88,12 +97,15 @@ class DispNet(nn.Module):
             raise ValueError(f"aggregation: expected '2d' or '3d', got {aggregation!r}")
         if groups < 1 or (2 * channels) % groups:
             raise ValueError(f"groups: expected a divisor of 2 * channels = {2 * channels}, got {groups}")
+        if upsample not in ("bilinear", "select"):
+            raise ValueError(f"upsample: expected 'bilinear' or 'select', got {upsample!r}")
         if refine_radius < 0:
             raise ValueError(f"refine_radius: expected >= 0, got {refine_radius}")
         self.max_disp = int(max_disp)
         self.channels = int(channels)
         self.refine_radius = int(refine_radius)
         self.aggregation, self.groups = aggregation, int(groups)
+        self.upsample = upsample
         c = self.channels
         r = 2 * self.refine_radius + 1  # channels of each local correlation
         self.corr_disp = self.max_disp // 4
@@ -129,6 +141,41 @@ class DispNet(nn.Module):
         self.dec0 = nn.Sequential(conv_block(c // 2 + 3 + r + 1, c // 2), conv_block(c // 2, c // 2))
         self.pred0 = nn.Conv2d(c // 2, 1, 3, padding=1)
         self.refine_unit = 2.0  # the 1/2 and 1/1 residuals: raw outputs ~1 = 2 input pixels
+        if upsample == "select":  # context logits of the candidate choice at 1/2 and 1/1
+            k = self.num_candidates
+            self.select1 = nn.Sequential(conv_block(c + c + 2 * k, c), nn.Conv2d(c, k, 3, padding=1))
+            self.select0 = nn.Sequential(conv_block(c // 2 + c // 2 + 2 * k, c // 2), nn.Conv2d(c // 2, k, 3, padding=1))
+            for head in (self.select1, self.select0):  # start as pure matching: logits = correlation
+                nn.init.zeros_(head[-1].weight)
+                nn.init.zeros_(head[-1].bias)
+            self.select_scale = nn.Parameter(torch.tensor(10.0))
+
+    num_candidates = 10  # 3x3 coarse neighbours + the bilinear value
+
+    def _select_up(self, coarse: torch.Tensor, feat_left: torch.Tensor, feat_right: torch.Tensor,
+                   context: torch.Tensor, scale: int, head: nn.Module) -> torch.Tensor:
+        """Upsample ``coarse`` :math:`(B, 1, h, w)` (input pixels) x2 by a matched soft choice.
+
+        Candidates of each fine pixel: the 3x3 coarse neighbours of its parent cell and the bilinear value.
+        Logits: cosine similarity of ``feat_left`` with ``feat_right`` warped by each candidate (features at
+        the fine scale, ``scale`` input pixels per feature pixel) times a learned temperature, plus ``head``
+        on [context, similarities, candidate offsets]. Returns :math:`(B, 1, 2h, 2w)`.
+        """
+        b, _, h, w = coarse.shape
+        neigh = F.unfold(F.pad(coarse, (1, 1, 1, 1), mode="replicate"), 3).view(b, 9, h, w)
+        base = _up2(coarse)
+        cands = torch.cat([F.interpolate(neigh, scale_factor=2.0, mode="nearest"), base], dim=1)  # BxKx2hx2w
+        # The similarities are constants for training: the choice learns through its weights, the features
+        # learn to match from the local correlations and the 1/4 soft-argmin (no gradient here saves ~3/4
+        # of this function's training time).
+        with torch.no_grad():
+            fl, fr = unit_channels(feat_left), unit_channels(feat_right)
+            warp_at = cands / scale
+            corr = torch.stack([(fl * warp_right(fr, warp_at[:, k:k + 1])).sum(dim=1)
+                                for k in range(cands.shape[1])], dim=1)  # BxKx2hx2w cosine similarities
+        offsets = (cands - base).detach() / self.refine_unit
+        logits = corr * self.select_scale + head(torch.cat([context, corr, offsets], dim=1))
+        return (logits.softmax(dim=1) * cands).sum(dim=1, keepdim=True)
 
     def _local_cost(self, feat_left: torch.Tensor, feat_right: torch.Tensor, disp: torch.Tensor,
                     scale: int) -> torch.Tensor:
@@ -168,13 +215,21 @@ class DispNet(nn.Module):
         d3 = _up2(d4) + self.pred3(x3) * self.disp_unit
         x2 = self.dec2(torch.cat([self.up2(x3), e2_l, corr, _up2(d3)], dim=1))
         d2 = d_match + self.pred2(x2) * self.disp_unit
-        d1_init = _up2(d2)
+        u1 = self.up1(x2)
+        if self.upsample == "select":
+            d1_init = self._select_up(d2, e1_l, e1[b:], torch.cat([u1, e1_l], dim=1), 2, self.select1)
+        else:
+            d1_init = _up2(d2)
         local1 = self._local_cost(e1_l, e1[b:], d1_init, 2)  # Bx(2r+1)xH/2xW/2
-        x1 = self.dec1(torch.cat([self.up1(x2), e1_l, local1, d1_init / self.disp_unit], dim=1))
+        x1 = self.dec1(torch.cat([u1, e1_l, local1, d1_init / self.disp_unit], dim=1))
         d1 = d1_init + self.pred1(x1) * self.refine_unit
-        d0_init = _up2(d1)
+        u0 = self.up0(x1)
+        if self.upsample == "select":
+            d0_init = self._select_up(d1, e0[:b], e0[b:], torch.cat([u0, e0[:b]], dim=1), 1, self.select0)
+        else:
+            d0_init = _up2(d1)
         local0 = self._local_cost(e0[:b], e0[b:], d0_init, 1)  # Bx(2r+1)xHxW
-        x0 = self.dec0(torch.cat([self.up0(x1), x_left, local0, d0_init / self.disp_unit], dim=1))
+        x0 = self.dec0(torch.cat([u0, x_left, local0, d0_init / self.disp_unit], dim=1))
         d0 = d0_init + self.pred0(x0) * self.refine_unit
         return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2},
                              matched=d_match)

@@ -144,7 +144,7 @@ class DispNetModule(StereoModule):
     """Trains :class:`~stereonet.models.dispnet.DispNet` with the coarse-to-fine multi-scale L1 loss.
 
     Args:
-        max_disp, channels: the network's (see DispNet).
+        max_disp, channels, aggregation, upsample: the network's (see DispNet).
         scale_weight_width: std (in scale steps) of the moving loss-weight bump.
         match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
             makes the shared features learn to match instead of the decoder learning a prior.
@@ -155,14 +155,15 @@ class DispNetModule(StereoModule):
 
     def __init__(self, max_disp: int = 96, channels: int = 16, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000, aggregation: str = "2d") -> None:
+                 schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
-        self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation)
+        self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample)
 
     def model_config(self) -> dict:
         hp = self.hparams
-        return {"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation}
+        return {"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation,
+                "upsample": hp.upsample}
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
@@ -185,7 +186,7 @@ class SMDModule(StereoModule):
     """Trains :class:`~stereonet.models.smd.SMDNet`: mixture NLL + ``backbone_weight`` x multi-scale L1.
 
     Args:
-        max_disp, channels, hidden: the network's (see SMDNet).
+        max_disp, channels, hidden, aggregation, upsample: the network's (see SMDNet).
         backbone_weight: weight of the backbone's multi-scale L1 loss.
         init_backbone: optional DispNet weights (slim .pt or .ckpt) to start the backbone from.
         match_weight: as :class:`DispNetModule`'s, on the backbone.
@@ -196,10 +197,11 @@ class SMDModule(StereoModule):
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
-                 aggregation: str = "2d") -> None:
+                 aggregation: str = "2d", upsample: str = "bilinear") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
-        self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation)
+        self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation,
+                            upsample=upsample)
         if init_backbone:
             backbone, _ = load_weights(init_backbone, expected="dispnet")
             self.model.backbone.load_state_dict(backbone.state_dict())
@@ -207,7 +209,7 @@ class SMDModule(StereoModule):
     def model_config(self) -> dict:
         hp = self.hparams
         return {"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden),
-                "aggregation": hp.aggregation}
+                "aggregation": hp.aggregation, "upsample": hp.upsample}
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)

@@ -130,6 +130,34 @@ def test_group_correlation_means_to_correlation_and_aggregation_variants():
         DispNet(channels=8, groups=3)
 
 
+def test_select_upsampling_keeps_depth_edges_sharp():
+    """At a depth edge the matched choice among coarse neighbours gives the foreground's or the background's
+    disparity where bilinear upsampling blends them (untrained head: the logits are the correlation alone)."""
+    g = torch.Generator().manual_seed(3)
+    h, w, near, far, edge = 8, 64, 12, 4, 32  # fine scale; true disparity far left of the edge, near right of it
+    feat_right = torch.randn(1, 16, h, w + near, generator=g)
+    xs = torch.arange(w)
+    true = torch.where(xs < edge, far, near).float()
+    feat_left = feat_right[..., (xs + near - true).long()]  # left(x) = right(x - d(x)) in a padded frame
+    feat_right = feat_right[..., near:]  # crop so the padded frame's x + near is the image's x
+    true_map = true.view(1, 1, 1, w).expand(1, 1, h, w)
+    coarse = torch.nn.functional.avg_pool2d(torch.nn.functional.pad(true_map, (1, 0, 0, 0), mode="replicate")[..., :w],
+                                            2)  # edge falls inside a coarse cell: that cell is a blend
+    net = DispNet(max_disp=16, channels=8, upsample="select")
+    context = torch.zeros(1, 8, h, w)
+    with torch.no_grad():
+        selected = net._select_up(coarse, feat_left, feat_right, context, 1, net.select0)
+        bilinear = torch.nn.functional.interpolate(coarse, scale_factor=2.0, mode="bilinear", align_corners=False)
+    band = (xs - edge).abs() <= 3  # the pixels beside the edge, away from the image border
+    interior = band & (xs > near + 2)
+    err_sel = (selected[0, 0, 1:-1] - true_map[0, 0, 1:-1]).abs()[:, interior]
+    err_bil = (bilinear[0, 0, 1:-1] - true_map[0, 0, 1:-1]).abs()[:, interior]
+    assert err_bil.mean() > 1.0  # the blend is far from both sides
+    assert err_sel.mean() < 0.1 * err_bil.mean() and err_sel.max() < 0.5
+    with pytest.raises(ValueError, match="upsample"):
+        DispNet(upsample="nearest")
+
+
 def test_unit_channels_equals_normalize():
     x = torch.randn(2, 5, 4, 6)
     assert torch.allclose(unit_channels(x), torch.nn.functional.normalize(x, dim=1), atol=1e-6)
