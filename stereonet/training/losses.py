@@ -60,23 +60,38 @@ def coarse_to_fine_weights(progress: float, n_scales: int, width: float = 1.0, f
 
 
 def bimodal_laplacian_nll(mu1: torch.Tensor, mu2: torch.Tensor, b1: torch.Tensor, b2: torch.Tensor,
-                          pi: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+                          pi: torch.Tensor, target: torch.Tensor, valid: torch.Tensor,
+                          weight: torch.Tensor | None = None) -> torch.Tensor:
     """Mean negative log-likelihood of ``target`` under a bimodal Laplacian mixture, over ``valid`` pixels.
 
     ``p(d) = pi/(2 b1) exp(-|d-mu1|/b1) + (1-pi)/(2 b2) exp(-|d-mu2|/b2)``; every argument :math:`(B, 1, H, W)`,
-    ``b1, b2 > 0``, ``pi`` in (0, 1). Computed with logsumexp (stable for small b).
+    ``b1, b2 > 0``, ``pi`` in (0, 1). Computed with logsumexp (stable for small b). ``weight`` (same shape,
+    >= 0) makes it a weighted mean over the valid pixels.
     """
     eps = torch.finfo(pi.dtype).eps  # keeps log(pi) finite when the sigmoid saturates
     log_p1 = torch.log(pi.clamp(min=eps)) - torch.log(2 * b1) - (target - mu1).abs() / b1
     log_p2 = torch.log((1 - pi).clamp(min=eps)) - torch.log(2 * b2) - (target - mu2).abs() / b2
     nll = -torch.logsumexp(torch.stack([log_p1, log_p2]), dim=0)
     valid_f = valid.to(nll.dtype)
-    return (nll * valid_f).sum() / valid_f.sum().clamp(min=1)
+    if weight is not None:
+        valid_f = valid_f * weight.to(nll.dtype)
+    return (nll * valid_f).sum() / valid_f.sum().clamp(min=1e-6)
 
 
-def mixture_nll(mix: MixtureParams, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+def edge_weights(target: torch.Tensor, valid: torch.Tensor, edge_weight: float, width: int = 3) -> torch.Tensor:
+    """Per-pixel loss weights :math:`(B, 1, H, W)`: ``edge_weight`` within a ``width`` x ``width`` box of a
+    ground-truth depth discontinuity (a jump > 1 px), 1 elsewhere (SMD-Nets samples half of its training
+    points near such edges; weighting is the dense equivalent)."""
+    from stereonet.metrics import depth_discontinuities
+
+    edges = depth_discontinuities(target.detach(), valid, threshold=1.0, dilation=width)
+    return 1.0 + (float(edge_weight) - 1.0) * edges.to(target.dtype)
+
+
+def mixture_nll(mix: MixtureParams, target: torch.Tensor, valid: torch.Tensor,
+                weight: torch.Tensor | None = None) -> torch.Tensor:
     """:func:`bimodal_laplacian_nll` of a :class:`~stereonet.models.smd.MixtureParams`."""
-    return bimodal_laplacian_nll(mix.mu1, mix.mu2, mix.b1, mix.b2, mix.pi, target, valid)
+    return bimodal_laplacian_nll(mix.mu1, mix.mu2, mix.b1, mix.b2, mix.pi, target, valid, weight)
 
 
 @torch.no_grad()

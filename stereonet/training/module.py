@@ -24,6 +24,7 @@ from stereonet.training.curriculum import training_progress
 from stereonet.training.losses import (
     coarse_to_fine_weights,
     disparity_errors,
+    edge_weights,
     mixture_nll,
     multiscale_l1_loss,
 )
@@ -190,6 +191,8 @@ class SMDModule(StereoModule):
         backbone_weight: weight of the backbone's multi-scale L1 loss.
         init_backbone: optional DispNet weights (slim .pt or .ckpt) to start the backbone from.
         match_weight: as :class:`DispNetModule`'s, on the backbone.
+        edge_weight: weight of the mixture NLL within 1 px of a ground-truth depth edge (1 = uniform); SMD-Nets
+            trains its head on points sampled half near edges, where the bimodal output matters.
     """
 
     model_name = "smd"
@@ -197,8 +200,10 @@ class SMDModule(StereoModule):
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
-                 aggregation: str = "2d", upsample: str = "bilinear") -> None:
+                 aggregation: str = "2d", upsample: str = "bilinear", edge_weight: float = 1.0) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
+        if edge_weight < 1.0:
+            raise ValueError(f"edge_weight: expected >= 1, got {edge_weight}")
         self.save_hyperparameters()
         self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation,
                             upsample=upsample)
@@ -216,7 +221,10 @@ class SMDModule(StereoModule):
 
     def compute(self, batch: dict):
         out = self.model(batch["left"], batch["right"])
-        nll = mixture_nll(out.mixture, batch["disparity"], batch["valid"])
+        weight = None
+        if self.hparams.edge_weight != 1.0:
+            weight = edge_weights(batch["disparity"], batch["valid"], self.hparams.edge_weight)
+        nll = mixture_nll(out.mixture, batch["disparity"], batch["valid"], weight)
         weights = coarse_to_fine_weights(self.progress, len(out.backbone.pyramid), self.hparams.scale_weight_width)
         l1, _ = multiscale_l1_loss(out.backbone.pyramid, batch["disparity"], batch["valid"], weights)
         match_l1, _ = multiscale_l1_loss([out.backbone.matched], batch["disparity"], batch["valid"], [1.0])

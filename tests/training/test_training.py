@@ -14,7 +14,12 @@ from stereonet.models.siamese import siamese_pair_loss
 from stereonet.training.callbacks import AtomicCheckpointIO
 from stereonet.training.curriculum import difficulty_at
 from stereonet.training.data import RandomShiftStereo, collate_pairs, gt_nonoccluded, swap_flip
-from stereonet.training.losses import bimodal_laplacian_nll, coarse_to_fine_weights, multiscale_l1_loss
+from stereonet.training.losses import (
+    bimodal_laplacian_nll,
+    coarse_to_fine_weights,
+    edge_weights,
+    multiscale_l1_loss,
+)
 from stereonet.training.module import DispNetModule, SiameseModule, SMDModule
 
 CONFIGS = sorted((Path(__file__).resolve().parents[2] / "configs").glob("*.yaml"))
@@ -88,6 +93,24 @@ def test_bimodal_nll_reduces_to_laplacian_and_gradcheck():
     tgt = torch.rand(1, 1, 2, 3, generator=g, dtype=torch.float64) * 5
     assert torch.autograd.gradcheck(lambda *a: bimodal_laplacian_nll(*a, tgt, torch.ones_like(tgt, dtype=torch.bool)),
                                     tuple(args))
+
+
+def test_edge_weighted_nll_weights_the_pixels_beside_depth_edges():
+    gt = torch.full((1, 1, 6, 10), 5.0)
+    gt[..., 5:] = 20.0  # a vertical depth edge between columns 4 and 5
+    valid = torch.ones_like(gt, dtype=torch.bool)
+    w = edge_weights(gt, valid, 4.0)
+    assert torch.equal(w[0, 0, 0], torch.tensor([1.0, 1, 1, 4, 4, 4, 4, 1, 1, 1]))  # 1 px either side of the jump
+    assert torch.equal(edge_weights(gt, valid, 1.0), torch.ones_like(gt))
+    # the weighted mean: an error only at the edge counts 4x more than with uniform weights (up to the norm)
+    mu = gt.clone()
+    mu[..., 4] += 3.0  # wrong only beside the edge
+    b, pi = torch.ones_like(gt), torch.full_like(gt, 0.5)
+    base = bimodal_laplacian_nll(mu, mu, b, b, pi, gt, valid)
+    weighted = bimodal_laplacian_nll(mu, mu, b, b, pi, gt, valid, w)
+    floor = float(torch.log(torch.tensor(2.0)))  # NLL of an exact prediction with b = 1
+    assert (base - floor) == pytest.approx(3.0 * 6 / 60, rel=1e-5)
+    assert (weighted - floor) == pytest.approx(3.0 * 6 * 4 / (60 + 3 * 24), rel=1e-5)
 
 
 def test_swap_flip_gives_a_consistent_pair():
