@@ -5,9 +5,9 @@ Each loads its network from ``weights/<name>.pt`` (or ``.ckpt``) the first time 
 raise errors that name the file (see :mod:`stereonet.models.weights`). No Lightning import here.
 
 Disparities beyond the trained range: DispNet and SMD correlate up to the ``max_disp`` they were trained
-with (``net.max_disp``, stored in the weights file; 128 px for the shipped ones). When the requested
+with (``net.max_disp``, stored in the weights file; 96 px for the shipped ones). When the requested
 ``max_disp`` is larger, the pair is downscaled by ``trained / max_disp`` before the network runs and the
-disparity is upscaled back (so KITTI at full width, ~200 px, runs at about 0.64 of its size). The
+disparity is upscaled back (so KITTI at full width, ~200 px, runs at about half its size). The
 Siamese matchers have no such limit (the cost volume spans ``max_disp``).
 """
 
