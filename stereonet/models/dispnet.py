@@ -41,7 +41,7 @@ from stereonet.models.layers import (
     standardize_image,
     unit_channels,
     upconv_block,
-    warp_right,
+    warped_correlation,
 )
 
 
@@ -152,14 +152,14 @@ class DispNet(nn.Module):
 
     num_candidates = 10  # 3x3 coarse neighbours + the bilinear value
 
-    def _select_up(self, coarse: torch.Tensor, feat_left: torch.Tensor, feat_right: torch.Tensor,
+    def _select_up(self, coarse: torch.Tensor, unit_left: torch.Tensor, unit_right: torch.Tensor,
                    context: torch.Tensor, scale: int, head: nn.Module) -> torch.Tensor:
         """Upsample ``coarse`` :math:`(B, 1, h, w)` (input pixels) x2 by a matched soft choice.
 
         Candidates of each fine pixel: the 3x3 coarse neighbours of its parent cell and the bilinear value.
-        Logits: cosine similarity of ``feat_left`` with ``feat_right`` warped by each candidate (features at
-        the fine scale, ``scale`` input pixels per feature pixel) times a learned temperature, plus ``head``
-        on [context, similarities, candidate offsets]. Returns :math:`(B, 1, 2h, 2w)`.
+        Logits: cosine similarity of the unit-length features ``unit_left`` with ``unit_right`` warped by each
+        candidate (features at the fine scale, ``scale`` input pixels per feature pixel) times a learned
+        temperature, plus ``head`` on [context, similarities, candidate offsets]. Returns :math:`(B, 1, 2h, 2w)`.
         """
         b, _, h, w = coarse.shape
         neigh = F.unfold(F.pad(coarse, (1, 1, 1, 1), mode="replicate"), 3).view(b, 9, h, w)
@@ -168,21 +168,17 @@ class DispNet(nn.Module):
         # The similarities are constants for training: the choice learns through its weights, the features
         # learn to match from the local correlations and the 1/4 soft-argmin (no gradient here saves ~3/4
         # of this function's training time).
-        with torch.no_grad():
-            fl, fr = unit_channels(feat_left), unit_channels(feat_right)
-            warp_at = cands / scale
-            corr = torch.stack([(fl * warp_right(fr, warp_at[:, k:k + 1])).sum(dim=1)
-                                for k in range(cands.shape[1])], dim=1)  # BxKx2hx2w cosine similarities
+        with torch.no_grad():  # mean over channels of unit vectors x C = cosine similarity
+            corr = warped_correlation(unit_left, unit_right, cands / scale) * unit_left.shape[1]  # BxKx2hx2w
         offsets = (cands - base).detach() / self.refine_unit
         logits = corr * self.select_scale + head(torch.cat([context, corr, offsets], dim=1))
         return (logits.softmax(dim=1) * cands).sum(dim=1, keepdim=True)
 
-    def _local_cost(self, feat_left: torch.Tensor, feat_right: torch.Tensor, disp: torch.Tensor,
+    def _local_cost(self, unit_left: torch.Tensor, unit_right: torch.Tensor, disp: torch.Tensor,
                     scale: int) -> torch.Tensor:
-        """Local correlation at one scale: features :math:`(B, C, h, w)`, ``disp`` :math:`(B, 1, h, w)` in
-        input pixels; returns :math:`(B, 2r+1, h, w)` logits (scaled cosine similarity)."""
-        return local_correlation(unit_channels(feat_left), unit_channels(feat_right),
-                                 disp / scale, self.refine_radius) * self.local_scale
+        """Local correlation at one scale: unit-length features :math:`(B, C, h, w)`, ``disp``
+        :math:`(B, 1, h, w)` in input pixels; returns :math:`(B, 2r+1, h, w)` logits (scaled correlation)."""
+        return local_correlation(unit_left, unit_right, disp / scale, self.refine_radius) * self.local_scale
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> DispNetOutput:
         """left, right: :math:`(B, C, H, W)` in [0, 1], H and W multiples of :attr:`stride`."""
@@ -215,20 +211,21 @@ class DispNet(nn.Module):
         d3 = _up2(d4) + self.pred3(x3) * self.disp_unit
         x2 = self.dec2(torch.cat([self.up2(x3), e2_l, corr, _up2(d3)], dim=1))
         d2 = d_match + self.pred2(x2) * self.disp_unit
+        n1, n0 = unit_channels(e1), unit_channels(e0)  # both views, normalised once per scale
         u1 = self.up1(x2)
         if self.upsample == "select":
-            d1_init = self._select_up(d2, e1_l, e1[b:], torch.cat([u1, e1_l], dim=1), 2, self.select1)
+            d1_init = self._select_up(d2, n1[:b], n1[b:], torch.cat([u1, e1_l], dim=1), 2, self.select1)
         else:
             d1_init = _up2(d2)
-        local1 = self._local_cost(e1_l, e1[b:], d1_init, 2)  # Bx(2r+1)xH/2xW/2
+        local1 = self._local_cost(n1[:b], n1[b:], d1_init, 2)  # Bx(2r+1)xH/2xW/2
         x1 = self.dec1(torch.cat([u1, e1_l, local1, d1_init / self.disp_unit], dim=1))
         d1 = d1_init + self.pred1(x1) * self.refine_unit
         u0 = self.up0(x1)
         if self.upsample == "select":
-            d0_init = self._select_up(d1, e0[:b], e0[b:], torch.cat([u0, e0[:b]], dim=1), 1, self.select0)
+            d0_init = self._select_up(d1, n0[:b], n0[b:], torch.cat([u0, e0[:b]], dim=1), 1, self.select0)
         else:
             d0_init = _up2(d1)
-        local0 = self._local_cost(e0[:b], e0[b:], d0_init, 1)  # Bx(2r+1)xHxW
+        local0 = self._local_cost(n0[:b], n0[b:], d0_init, 1)  # Bx(2r+1)xHxW
         x0 = self.dec0(torch.cat([u0, x_left, local0, d0_init / self.disp_unit], dim=1))
         d0 = d0_init + self.pred0(x0) * self.refine_unit
         return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2},

@@ -111,6 +111,19 @@ def warp_right(feat_right: torch.Tensor, disparity: torch.Tensor) -> torch.Tenso
     return F.grid_sample(feat_right, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
 
 
+def warped_correlation(feat_left: torch.Tensor, feat_right: torch.Tensor, disparities: torch.Tensor) -> torch.Tensor:
+    """Correlation of the left features with the right ones warped by each of K per-pixel disparities.
+
+    ``similarity[b, k, y, x] = mean_c feat_left[b, c, y, x] * feat_right[b, c, y, x - disparities[b, k, y, x]]``
+    (bilinear in x, zeros outside). Args: features :math:`(B, C, H, W)`, disparities :math:`(B, K, H, W)` in
+    pixels of this scale. Returns :math:`(B, K, H, W)`, differentiable in the features and the disparities.
+    """
+    if feat_left.shape != feat_right.shape:
+        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
+    return torch.stack([(feat_left * warp_right(feat_right, disparities[:, k:k + 1])).mean(dim=1)
+                        for k in range(disparities.shape[1])], dim=1)  # BxKxHxW
+
+
 def local_correlation(feat_left: torch.Tensor, feat_right: torch.Tensor, disparity: torch.Tensor,
                       radius: int) -> torch.Tensor:
     """Correlation of the left features with the right ones warped by ``disparity + s``, s = -radius..radius.
@@ -119,10 +132,8 @@ def local_correlation(feat_left: torch.Tensor, feat_right: torch.Tensor, dispari
     (bilinear in x). Args: features :math:`(B, C, H, W)`, disparity :math:`(B, 1, H, W)` in pixels of this
     scale. Returns :math:`(B, 2 radius + 1, H, W)`, differentiable in the features and the disparity.
     """
-    if feat_left.shape != feat_right.shape:
-        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
-    return torch.stack([(feat_left * warp_right(feat_right, disparity + s)).mean(dim=1)
-                        for s in range(-radius, radius + 1)], dim=1)  # BxKxHxW
+    shifts = torch.arange(-radius, radius + 1, device=disparity.device, dtype=disparity.dtype).view(1, -1, 1, 1)
+    return warped_correlation(feat_left, feat_right, disparity + shifts)
 
 
 class InputPadder:

@@ -146,7 +146,8 @@ def test_select_upsampling_keeps_depth_edges_sharp():
     net = DispNet(max_disp=16, channels=8, upsample="select")
     context = torch.zeros(1, 8, h, w)
     with torch.no_grad():
-        selected = net._select_up(coarse, feat_left, feat_right, context, 1, net.select0)
+        selected = net._select_up(coarse, unit_channels(feat_left), unit_channels(feat_right), context, 1,
+                                  net.select0)
         bilinear = torch.nn.functional.interpolate(coarse, scale_factor=2.0, mode="bilinear", align_corners=False)
     band = (xs - edge).abs() <= 3  # the pixels beside the edge, away from the image border
     interior = band & (xs > near + 2)
