@@ -84,6 +84,24 @@ class StereoModule(L.LightningModule):
             return training_progress(self.global_step, -1, self.hparams.schedule_steps)
         return trainer_progress(self.trainer, self.hparams.schedule_steps)
 
+    def use_channels_last(self, enabled: bool) -> None:
+        """Keep the conv weights and the input images in the channels-last (NHWC) memory format.
+
+        Same maths, different layout: oneDNN's CPU convolutions skip a reorder per call, which made a DispNet
+        training step (batch 4, 128x256, 2 threads) about 13 % faster here. Saved weights load either way.
+        """
+        self._channels_last = bool(enabled)
+        if enabled:
+            self.model.to(memory_format=torch.channels_last)
+
+    def _images(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """The batch's (left, right), in the memory format chosen by :meth:`use_channels_last`."""
+        left, right = batch["left"], batch["right"]
+        if getattr(self, "_channels_last", False):
+            left = left.contiguous(memory_format=torch.channels_last)
+            right = right.contiguous(memory_format=torch.channels_last)
+        return left, right
+
     def compute(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
         """(loss, full-resolution prediction (B,1,H,W) or None if not computed, extra scalars to log)."""
         raise NotImplementedError
@@ -150,16 +168,19 @@ class DispNetModule(StereoModule):
         match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
             makes the shared features learn to match instead of the decoder learning a prior.
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
+        channels_last: train in the channels-last memory format (see :meth:`StereoModule.use_channels_last`).
     """
 
     model_name = "dispnet"
 
     def __init__(self, max_disp: int = 96, channels: int = 16, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear") -> None:
+                 schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear",
+                 channels_last: bool = False) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample)
+        self.use_channels_last(channels_last)
 
     def model_config(self) -> dict:
         hp = self.hparams
@@ -170,7 +191,7 @@ class DispNetModule(StereoModule):
         return self.model(left, right)
 
     def compute(self, batch: dict):
-        out = self.model(batch["left"], batch["right"])
+        out = self.model(*self._images(batch))
         weights = coarse_to_fine_weights(self.progress, len(out.pyramid), self.hparams.scale_weight_width)
         loss, per_scale = multiscale_l1_loss(out.pyramid, batch["disparity"], batch["valid"], weights)
         match_l1, _ = multiscale_l1_loss([out.matched], batch["disparity"], batch["valid"], [1.0])
@@ -193,6 +214,7 @@ class SMDModule(StereoModule):
         match_weight: as :class:`DispNetModule`'s, on the backbone.
         edge_weight: weight of the mixture NLL within 1 px of a ground-truth depth edge (1 = uniform); SMD-Nets
             trains its head on points sampled half near edges, where the bimodal output matters.
+        channels_last: as :class:`DispNetModule`'s.
     """
 
     model_name = "smd"
@@ -200,7 +222,8 @@ class SMDModule(StereoModule):
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
-                 aggregation: str = "2d", upsample: str = "bilinear", edge_weight: float = 1.0) -> None:
+                 aggregation: str = "2d", upsample: str = "bilinear", edge_weight: float = 1.0,
+                 channels_last: bool = False) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if edge_weight < 1.0:
             raise ValueError(f"edge_weight: expected >= 1, got {edge_weight}")
@@ -210,6 +233,7 @@ class SMDModule(StereoModule):
         if init_backbone:
             backbone, _ = load_weights(init_backbone, expected="dispnet")
             self.model.backbone.load_state_dict(backbone.state_dict())
+        self.use_channels_last(channels_last)
 
     def model_config(self) -> dict:
         hp = self.hparams
@@ -220,7 +244,7 @@ class SMDModule(StereoModule):
         return self.model(left, right)
 
     def compute(self, batch: dict):
-        out = self.model(batch["left"], batch["right"])
+        out = self.model(*self._images(batch))
         weight = None
         if self.hparams.edge_weight != 1.0:
             weight = edge_weights(batch["disparity"], batch["valid"], self.hparams.edge_weight)
