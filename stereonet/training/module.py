@@ -69,6 +69,7 @@ class StereoModule(L.LightningModule):
     def __init__(self, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
         super().__init__()
         self.model: torch.nn.Module
+        self._channels_last = False  # set by use_channels_last
 
     # -- the model card that goes into every checkpoint, read by stereonet.models.weights.load_weights
     def model_config(self) -> dict:
@@ -97,7 +98,7 @@ class StereoModule(L.LightningModule):
     def _images(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """The batch's (left, right), in the memory format chosen by :meth:`use_channels_last`."""
         left, right = batch["left"], batch["right"]
-        if getattr(self, "_channels_last", False):
+        if self._channels_last:
             left = left.contiguous(memory_format=torch.channels_last)
             right = right.contiguous(memory_format=torch.channels_last)
         return left, right
