@@ -32,7 +32,7 @@ from stereonet.checks import StereoInputError
 
 __all__ = [
     "bad_pixel_rate", "d1_kitti", "density", "depth_discontinuities", "end_point_error", "epe", "evaluate",
-    "soft_edge_error",
+    "soft_edge_error", "sparsification", "sparsification_ause",
 ]
 
 
@@ -212,6 +212,70 @@ def soft_edge_error(pred, gt, gt_valid=None, k: int = 3, pred_valid=None, thresh
     neigh = neigh.reshape(b, k * k, h, w)  # Bx(k*k)xHxW
     err = (neigh - pr).abs().amin(dim=1, keepdim=True)  # Bx1xHxW, finite wherever gt_valid (centre included)
     return _reduce(err, edges & pv, reduction)
+
+
+SPARSIFICATION_STEPS = 20  # remove 0 %, 5 %, ..., 95 % of the pixels (the last 5 % always stay)
+
+
+def _ranking(uncertainty, confidence, shape) -> torch.Tensor:
+    """One "how unsure" score per pixel, higher = less trustworthy: ``uncertainty`` or ``-confidence``."""
+    if (uncertainty is None) == (confidence is None):
+        raise StereoInputError("uncertainty, confidence: expected exactly one of them, got "
+                               + ("both" if uncertainty is not None else "neither"))
+    name, x = ("uncertainty", uncertainty) if uncertainty is not None else ("confidence", confidence)
+    t = _as_b1hw(x, name)
+    if tuple(t.shape) != shape:
+        raise StereoInputError(f"{name}: expected shape {shape} like gt, got {tuple(t.shape)}")
+    t = torch.nan_to_num(t, nan=math.inf if uncertainty is not None else -math.inf)
+    return t if uncertainty is not None else -t
+
+
+@torch.no_grad()
+def sparsification(pred, gt, gt_valid=None, uncertainty=None, confidence=None, pred_valid=None,
+                   tau: float = 2.0, steps: int = SPARSIFICATION_STEPS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sparsification curves of bad-``tau`` (Ilg et al., ECCV 2018; the AUSE of Poggi et al., CVPR 2020).
+
+    Over the evaluated pixels (``gt_valid``, pooled over the batch) remove the fraction ``f`` that the
+    method trusts least (descending ``uncertainty``, or ascending ``confidence``; pixels without a
+    prediction are removed before any predicted one and count as errors, as in :func:`bad_pixel_rate`) and
+    measure bad-``tau`` of the rest; the oracle removes pixels by descending true error instead.
+
+    Returns:
+        ``(fractions, curve, oracle)``: ``fractions = i / steps`` for ``i = 0 .. steps - 1`` and the two
+        bad-``tau`` curves in percent at those fractions (numpy float64 arrays of length ``steps``).
+    """
+    tau = _check_tau(tau)
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise StereoInputError(f"steps: expected a positive number of fractions, got {steps!r}")
+    pr, gt_t, gv, pv, _ = _inputs(pred, gt, gt_valid, pred_valid)
+    rank = _ranking(uncertainty, confidence, tuple(gt_t.shape))
+    rank = torch.where(pv, rank, torch.full_like(rank, math.inf))  # no answer: least trustworthy of all
+    err = _error_with_misses(pr, gt_t, pv)[gv]  # N
+    bad = (err > tau).to(torch.float64)
+    fractions = np.arange(steps, dtype=np.float64) / steps
+    n = int(bad.numel())
+    if n == 0:
+        nan = np.full(steps, math.nan)
+        return fractions, nan, nan.copy()
+    curves = []
+    for order_key in (rank[gv], err):
+        # stable descending sort: remove the first k; ties keep the pixel order
+        order = torch.sort(order_key.to(torch.float64), descending=True, stable=True).indices
+        removed_bad = torch.cat([bad.new_zeros(1), torch.cumsum(bad[order], 0)])  # bad among the first k
+        ks = torch.from_numpy(np.floor(fractions * n).astype(np.int64))
+        kept = (n - ks).to(torch.float64)
+        curves.append(((bad.sum() - removed_bad[ks]) / kept * 100.0).numpy())
+    return fractions, curves[0], curves[1]
+
+
+def sparsification_ause(pred, gt, gt_valid=None, uncertainty=None, confidence=None, pred_valid=None,
+                        tau: float = 2.0, steps: int = SPARSIFICATION_STEPS) -> float:
+    """Area under the sparsification error (AUSE) of bad-``tau``, in percentage points: the mean over the
+    fractions of :func:`sparsification` of (method curve - oracle curve). 0 = the method ranks its own
+    errors perfectly; a ranking that knows nothing (constant confidence) gives the full gap between
+    bad-``tau`` and the oracle. Lower is better. Do not use as a loss."""
+    _, curve, oracle = sparsification(pred, gt, gt_valid, uncertainty, confidence, pred_valid, tau, steps)
+    return float(np.mean(curve - oracle))
 
 
 @torch.no_grad()

@@ -189,6 +189,11 @@ def pair_metrics(out: StereoOutput, item: dict) -> dict[str, float]:
     with torch.no_grad():
         res = metrics.evaluate(out.disparity, gt, _batch(item["valid"]).bool(), pred_valid=out.valid,
                                occlusion=None if occ is None else _batch(occ).bool(), see=True)
+        if out.uncertainty is not None or out.confidence is not None:
+            # sparsification by the method's own uncertainty (preferred) or confidence
+            rank = {"uncertainty": out.uncertainty} if out.uncertainty is not None else {"confidence": out.confidence}
+            res["ause"] = metrics.sparsification_ause(out.disparity, gt, _batch(item["valid"]).bool(),
+                                                      pred_valid=out.valid, **rank)
     return {k: float(v) for k, v in res.items()}
 
 
@@ -334,7 +339,7 @@ def _key_order(k: str) -> tuple[int, str]:
 COLUMNS = (("EPE", "epe", "{:.2f}"), ("bad-1", "bad1", "{:.1f}"), ("bad-2", "bad2", "{:.1f}"),
            ("bad-4", "bad4", "{:.1f}"), ("D1", "d1", "{:.1f}"), ("dens", "density", "{:.1f}"),
            ("EPE-noc", "epe_noc", "{:.2f}"), ("bad-2-noc", "bad2_noc", "{:.1f}"), ("SEE", "see", "{:.2f}"),
-           ("s/pair", "seconds", "{:.3f}"), ("MiB", "peak_mib", "{:.1f}"))
+           ("AUSE", "ause", "{:.2f}"), ("s/pair", "seconds", "{:.3f}"), ("MiB", "peak_mib", "{:.1f}"))
 
 
 def format_table(rows: Sequence[dict]) -> str:

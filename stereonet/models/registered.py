@@ -138,7 +138,10 @@ def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, 
                         lr_tol: float = 1.0, fill: bool = True) -> StereoOutput:
     """SGM on the Siamese cost (``1 - cos`` in [0, 2]; P1/P2 in those units), WTA + parabola sub-pixel,
     left-right check (tolerance ``lr_tol``) and, with ``fill``, textbook occlusion filling (then every pixel
-    is valid; ``extras["lr_consistent"]`` keeps the check). Without ``fill``, ``valid`` = the LR check."""
+    is valid; ``extras["lr_consistent"]`` keeps the check). Without ``fill``, ``valid`` = the LR check.
+    ``confidence``: the aggregated cost's margin (:mod:`stereonet.optimize.confidence`), 0 where the LR
+    check failed."""
+    from stereonet.optimize.confidence import cost_margin_confidence
     from stereonet.optimize.fill import fill_occlusions
     from stereonet.optimize.lr_check import left_right_check, wta_right
     from stereonet.optimize.sgm import sgm_aggregate
@@ -155,4 +158,5 @@ def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, 
         valid = torch.ones_like(consistent)
     else:
         valid = consistent
-    return StereoOutput(disp, valid, cost_volume=agg, extras={"lr_consistent": consistent})
+    confidence = cost_margin_confidence(agg) * consistent.to(agg.dtype)  # 0 where the LR check failed
+    return StereoOutput(disp, valid, confidence=confidence, cost_volume=agg, extras={"lr_consistent": consistent})

@@ -29,6 +29,7 @@ from stereonet.checks import check_window
 from stereonet.cost import build_cost_volume
 from stereonet.cost.volume import build_cost_volume_checked, use_numba
 from stereonet.matchers import register
+from stereonet.optimize.confidence import cost_margin_confidence
 from stereonet.optimize.fill import fill_occlusions
 from stereonet.optimize.filters import median_filter, speckle_filter
 from stereonet.optimize.sgm import sgm_aggregate
@@ -141,7 +142,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     Options (defaults in :data:`SGM_DEFAULTS`): ``cost``, ``census_window``, ``window`` (cost aggregation,
     1 = pixelwise), ``P1``, ``P2`` (in cost units: Hamming bits for census), ``p2_alpha`` (P2 adaptation
     to the left image gradient), ``paths`` (4/8/16), then the back-end options of
-    :func:`select_and_filter`. The returned ``cost_volume`` is the aggregated cost.
+    :func:`select_and_filter`. The returned ``cost_volume`` is the aggregated cost; ``confidence`` is its
+    cost margin (:func:`~stereonet.optimize.confidence.cost_margin_confidence`), 0 on invalid pixels.
     """
     opts = {**SGM_DEFAULTS, **options}
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
@@ -153,4 +155,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     vol = build_cost_volume_checked(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
     agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, _guide_checked=True)
     del vol
-    return select_and_filter(agg, **back)
+    out = select_and_filter(agg, **back)
+    # cost margin of the aggregated cost, 0 where the LR check / uniqueness / speckle filter rejected
+    out.confidence = cost_margin_confidence(agg) * out.valid.to(agg.dtype)
+    return out
