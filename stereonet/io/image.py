@@ -72,9 +72,36 @@ def _check_netpbm(data: bytes, path: Path) -> None:
         raise fail(path, f"truncated, expected {expected} bytes of data, got {got}")
 
 
-def _check_jpeg(data: bytes, path: Path) -> None:
-    if b"\xff\xd9" not in data[-64:]:
-        raise fail(path, "truncated JPEG: no end-of-image marker (FFD9)")
+_JPEG_SOF = set(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # start-of-frame markers (not DHT, JPG, DAC)
+
+
+def _check_jpeg(data: bytes, path: Path) -> int:
+    """Walk the JPEG segments up to the first scan, then require an end-of-image marker after it.
+
+    Data after the end marker (phones append vendor blocks, MPF previews) is allowed; a thumbnail's own
+    end marker inside an APP segment is skipped with its segment. Returns the number of colour components
+    of the frame (1 = grey, 3 = colour)."""
+    pos, n, components = 2, len(data), 0
+    while True:
+        while pos < n and data[pos] == 0xFF and pos + 1 < n and data[pos + 1] == 0xFF:
+            pos += 1  # fill bytes
+        if pos + 4 > n or data[pos] != 0xFF:
+            raise fail(path, f"truncated or corrupt JPEG: no segment marker at byte {pos} of {n}")
+        marker, length = data[pos + 1], int.from_bytes(data[pos + 2:pos + 4], "big")
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # stand-alone markers
+            pos += 2
+            continue
+        if length < 2 or pos + 2 + length > n:
+            raise fail(path, f"truncated JPEG: segment FF{marker:02X} at byte {pos} needs {length} bytes, "
+                             f"{n - pos - 2} left")
+        if marker in _JPEG_SOF and length >= 8:
+            components = data[pos + 9]
+        pos += 2 + length
+        if marker == 0xDA:  # start of scan: entropy-coded data follows, up to EOI (FFD9)
+            break
+    if data.find(b"\xff\xd9", pos) < 0:
+        raise fail(path, "truncated JPEG: no end-of-image marker (FFD9) after the image data")
+    return components
 
 
 def read_array(path: str | os.PathLike) -> np.ndarray:
@@ -90,9 +117,11 @@ def read_array(path: str | os.PathLike) -> np.ndarray:
         _check_png(data, p)
     elif data[:2] in _NETPBM_CHANNELS:
         _check_netpbm(data, p)
-    elif data[:2] == b"\xff\xd8":
-        _check_jpeg(data, p)
-    arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    flags = cv2.IMREAD_UNCHANGED
+    if data[:2] == b"\xff\xd8":
+        # decoded with the EXIF orientation applied (IMREAD_UNCHANGED would ignore it); JPEG is 8-bit
+        flags = cv2.IMREAD_GRAYSCALE if _check_jpeg(data, p) == 1 else cv2.IMREAD_COLOR
+    arr = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if arr is None:
         raise fail(p, f"cannot decode as an image (starts with {data[:8]!r}; expected PNG, PPM/PGM, JPEG, BMP or TIFF)")
     return arr

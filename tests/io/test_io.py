@@ -309,3 +309,42 @@ def test_ply_readable_by_opencv_viz_free_parser(tmp_path):
     body = (tmp_path / "one.ply").read_bytes().split(b"end_header\n")[1]
     rec = np.frombuffer(body, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
     assert rec["x"][0] == 0.5 and rec["z"][0] == 2.5 and rec["b"][0] == 3
+
+
+def _exif_orientation_segment(orientation: int) -> bytes:
+    """A minimal APP1/Exif segment with one IFD entry: Orientation (0x0112, SHORT) = ``orientation``."""
+    import struct
+
+    tiff = b"II*\x00" + struct.pack("<I", 8) + struct.pack("<H", 1)
+    tiff += struct.pack("<HHIHH", 0x0112, 3, 1, orientation, 0) + struct.pack("<I", 0)
+    body = b"Exif\x00\x00" + tiff
+    return b"\xff\xe1" + struct.pack(">H", len(body) + 2) + body
+
+
+def test_jpeg_with_data_after_the_end_marker(tmp_path):
+    # phones append vendor blocks (and MPF previews) after FFD9; OpenCV decodes such files
+    img = torch.rand(3, 24, 40, generator=torch.Generator().manual_seed(0))
+    write_image(tmp_path / "phone.jpg", img)
+    plain = read_image(tmp_path / "phone.jpg")
+    data = (tmp_path / "phone.jpg").read_bytes() + b"\x00" * 50 + b"vendor trailer " * 20
+    (tmp_path / "phone.jpg").write_bytes(data)
+    torch.testing.assert_close(read_image(tmp_path / "phone.jpg"), plain)
+
+
+def test_jpeg_exif_orientation_is_honoured(tmp_path):
+    img = torch.zeros(3, 20, 30)
+    img[:, :5, :] = 1.0  # a bright band at the top of the stored image
+    write_image(tmp_path / "a.jpg", img)
+    data = (tmp_path / "a.jpg").read_bytes()
+    (tmp_path / "rot.jpg").write_bytes(data[:2] + _exif_orientation_segment(6) + data[2:])  # 6 = rotate 90 cw
+    rot = read_image(tmp_path / "rot.jpg")
+    assert rot.shape[-2:] == (30, 20)  # shown upright: width and height swapped
+    assert float(rot[0, :, :, -5:].mean()) > 0.8 and float(rot[0, :, :, :5].mean()) < 0.2  # band now at the right
+
+
+def test_truncated_jpeg_inside_a_segment(tmp_path):
+    write_image(tmp_path / "photo.jpg", torch.rand(3, 32, 32))
+    data = (tmp_path / "photo.jpg").read_bytes()
+    (tmp_path / "photo.jpg").write_bytes(data[:30])  # inside the header segments
+    with pytest.raises(FileFormatError, match=r"photo\.jpg: truncated"):
+        read_image(tmp_path / "photo.jpg")
