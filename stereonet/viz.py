@@ -72,6 +72,52 @@ def colorize_disparity(disp, max_disp: float, valid=None, colormap: int = cv2.CO
     return rgb
 
 
+def with_colour_bar(rgb: np.ndarray, low: float, high: float, unit: str, colormap: int = cv2.COLORMAP_TURBO,
+                    ticks: int = 5) -> np.ndarray:
+    """``rgb`` :math:`(H, W, 3)` uint8 with a vertical colour bar on its right: ``low`` (bottom) to ``high``
+    (top) in ``colormap``, ``ticks`` labelled values and the ``unit`` above. Returns uint8 :math:`(H, W + 90, 3)`."""
+    h, w = rgb.shape[:2]
+    bar_w, pad = 18, 90
+    out = np.full((h, w + pad, 3), 255, np.uint8)
+    out[:, :w] = rgb
+    top, bottom = 22, h - 8
+    if bottom - top < 10:
+        return out
+    level = np.linspace(255, 0, bottom - top).astype(np.uint8)[:, None].repeat(bar_w, 1)
+    out[top:bottom, w + 6:w + 6 + bar_w] = cv2.cvtColor(cv2.applyColorMap(level, colormap), cv2.COLOR_BGR2RGB)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.putText(out, unit, (w + 6, 15), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    for i in range(ticks):
+        frac = i / max(1, ticks - 1)
+        y = int(round(bottom - 1 - frac * (bottom - top - 1)))
+        value = low + frac * (high - low)
+        label = f"{value:.3g}"
+        cv2.line(out, (w + 6 + bar_w, y), (w + 10 + bar_w, y), (0, 0, 0), 1)
+        cv2.putText(out, label, (w + 13 + bar_w, y + 4), font, 0.38, (0, 0, 0), 1, cv2.LINE_AA)
+    return out
+
+
+def colorize_depth(depth, unit: str, valid=None, low: float | None = None, high: float | None = None) -> np.ndarray:
+    """Depth in colour with a colour bar in ``unit``: near = red, far = blue (turbo reversed), on a scale
+    from the 2nd to the 98th percentile of the valid depths (or ``low``/``high``); invalid pixels black.
+    Returns uint8 RGB :math:`(H, W + 90, 3)`."""
+    z = _as_hw(depth, "depth")
+    v = _mask(valid, z.shape, "valid") & np.isfinite(z) & (z > 0)
+    if low is None or high is None:
+        vals = z[v]
+        lo, hi = (float(np.percentile(vals, 2)), float(np.percentile(vals, 98))) if vals.size else (0.0, 1.0)
+        low = lo if low is None else low
+        high = hi if high is None else high
+    if not high > low:
+        high = low + 1.0
+    frac = np.clip((np.where(v, z, high) - low) / (high - low), 0.0, 1.0)
+    level = np.rint((1.0 - frac) * 255.0).astype(np.uint8)  # near = top of the colour map
+    rgb = cv2.cvtColor(cv2.applyColorMap(level, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+    rgb[~v] = 0
+    # the bar runs from high (top) to low: its colours must be the reversed map as well
+    return with_colour_bar(rgb, high, low, unit)
+
+
 def error_map(pred, gt, valid, pred_valid=None) -> np.ndarray:
     """KITTI-devkit error image: colour by ``min(|pred - gt| / 3, |pred - gt| / |gt| / 0.05)`` on a log scale
     (:data:`KITTI_ERROR_COLORS`; blue = accurate, red = outlier, the boundary at 1 is D1's).

@@ -175,37 +175,142 @@ def check_calibration_size(calib, left: torch.Tensor, path: Path) -> None:
         raise StereoInputError(f"--calib: {path} is for {w}x{h} images, got {left.shape[-1]}x{left.shape[-2]}")
 
 
+@dataclass
+class Settings:
+    """The per-run options of :func:`process_pair` beyond the method (defaults = the plain run)."""
+
+    fill: bool = False
+    scale: float = 1.0
+    min_disp: int = 0
+    alpha: float = 1.0
+    unit: str | None = None  # unit of the calibration's baseline; None = unknown
+    cloud_frame: str = "rectified"
+
+
+def scale_pair(left: torch.Tensor, right: torch.Tensor, calib, scale: float):
+    """Downscale both images by ``scale`` (area averaging) and the calibration with them (pixel centres:
+    ``x' = (x + 0.5) s - 0.5``; distortion is in normalised coordinates and stays). Returns (left, right, calib)."""
+    import torch.nn.functional as F
+
+    h, w = left.shape[-2:]
+    size = (max(8, round(h * scale)), max(8, round(w * scale)))
+    left, right = F.interpolate(left, size=size, mode="area"), F.interpolate(right, size=size, mode="area")
+    if calib is not None:
+        from dataclasses import replace
+
+        sx, sy = size[1] / w, size[0] / h
+        S = torch.tensor([[sx, 0.0, (sx - 1) / 2], [0.0, sy, (sy - 1) / 2], [0.0, 0.0, 1.0]], dtype=torch.float64)
+        calib = replace(calib, K1=S @ calib.K1, K2=S @ calib.K2, image_size=(size[1], size[0]),
+                        doffs=calib.doffs * sx, ndisp=None if not calib.ndisp else math.ceil(calib.ndisp * sx))
+    return left, right, calib
+
+
+def shift_right(right: torch.Tensor, content: torch.Tensor, min_disp: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``right'(u) = right(u - min_disp)``, so disparities ``d >= min_disp`` become ``d - min_disp >= 0``;
+    the columns shifted in are padding (``content`` False). ``content`` is the right image's (H, W) mask."""
+    out, mask = torch.zeros_like(right), torch.zeros_like(content)
+    w = right.shape[-1]
+    m = int(min_disp)
+    if m >= 0:
+        out[..., m:], mask[:, m:] = right[..., : w - m], content[:, : w - m]
+    else:
+        out[..., : w + m], mask[:, : w + m] = right[..., -m:], content[:, -m:]
+    return out, mask
+
+
+def content_valid(disp: torch.Tensor, left_content: torch.Tensor, right_content: torch.Tensor) -> torch.Tensor:
+    """Pixels whose left pixel and whose match ``x - d`` in the (matcher's) right image both have source
+    content. disp :math:`(1, 1, H, W)`, masks (H, W) bool -> (1, 1, H, W) bool."""
+    h, w = left_content.shape
+    x = torch.arange(w, device=disp.device).view(1, w).expand(h, w)
+    d = torch.nan_to_num(disp[0, 0].float(), nan=0.0, posinf=0.0, neginf=0.0)
+    xr = torch.round(x - d).long()
+    inside = (xr >= 0) & (xr < w)
+    rows = torch.arange(h, device=disp.device).view(h, 1).expand(h, w)
+    hit = right_content[rows, xr.clamp(0, w - 1)] & inside
+    return (left_content & hit)[None, None]
+
+
+def write_rectified_calibration(path: Path, rect, unit: str | None) -> None:
+    """The rectified rig as OpenCV FileStorage YAML: K (shared), baseline, R1, R2, P1, P2, Q, size."""
+    import cv2
+
+    from stereonet.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
+        h, w = rect.left.shape[-2:]
+        fs.write("image_width", int(w))
+        fs.write("image_height", int(h))
+        fs.write("K", rect.calib.K1.numpy())
+        fs.write("baseline", float(rect.calib.baseline))
+        fs.write("baseline_unit", unit or "unknown (the unit of the calibration's T)")
+        for name in ("R1", "R2", "P1", "P2", "Q"):
+            value = getattr(rect, name)
+            if value is not None:
+                fs.write(name, np.asarray(value, dtype=np.float64))
+        fs.write("convention", "X_rect_left = R1 X_left; X_rect_right = R2 X_right; [X Y Z W]^T = Q [u v d 1]^T")
+        fs.release()
+
+
+MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+
+
 def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp: int | None,
                  calib, calib_path: Path | None, uncalibrated: bool, device: torch.device,
-                 fill: bool = False) -> dict:
+                 fill: bool = False, settings: Settings | None = None) -> dict:
     """Run one pair and write its files into ``out_dir`` (an existing, private folder). Returns the info."""
     from stereonet import matchers, viz
-    from stereonet.io import write_disparity_pfm, write_image, write_ply
+    from stereonet.io import write_disparity_pfm, write_image, write_pfm, write_ply
 
+    st = settings or Settings(fill=fill)
     left, right = read_pair(pair, device)
-    info: dict = {"left": str(pair.left), "right": str(pair.right), "method": method, "rectified": None}
-    depth_calib, rect = None, None
+    info: dict = {"left": str(pair.left), "right": str(pair.right), "method": method, "rectified": None,
+                  "units": {"disparity": "px of the images processed (after --scale)", "confidence": "1 (0..1)"},
+                  "warnings": []}
     if calib is not None:
         check_calibration_size(calib, left, calib_path)
-        depth_calib = calib
+    if st.scale != 1.0:
+        h0, w0 = left.shape[-2:]
+        left, right, calib = scale_pair(left, right, calib, st.scale)
+        info["scale"] = {"factor": st.scale, "input_size": [int(w0), int(h0)],
+                         "processed_size": [int(left.shape[-1]), int(left.shape[-2])]}
+    depth_calib, rect = calib, None
+    h, w = left.shape[-2:]
+    left_content = torch.ones(h, w, dtype=torch.bool, device=device)
+    right_content = left_content.clone()
     if uncalibrated or (calib is not None and not calib.is_rectified()):
         from stereonet import geometry
 
         if uncalibrated:
-            rect = geometry.rectify_uncalibrated(left, right)
+            rect = geometry.rectify_uncalibrated(left, right, alpha=st.alpha)
             info["rectified"] = "uncalibrated (SIFT + robust F)"
             depth_calib = None
         else:
-            rect = geometry.rectify_calibrated(left, right, calib)
+            rect = geometry.rectify_calibrated(left, right, calib, alpha=st.alpha)
             info["rectified"] = "calibrated"
             depth_calib = rect.calib
+            write_rectified_calibration(out_dir / "rectified_calib.yaml", rect, st.unit)
+        left_content = geometry.content_mask(rect.maps[0], w, h).to(device)
+        right_content = geometry.content_mask(rect.maps[1], w, h).to(device)
         left, right = rect.left.to(device), rect.right.to(device)
+        info["alpha"] = st.alpha
+        info["padding_percent"] = 100.0 * (1.0 - float(left_content.float().mean()))
         write_image(out_dir / "rectified_left.png", left)
         write_image(out_dir / "rectified_right.png", right)
         pl, pr = sift_matches(left, right)
         write_image(out_dir / "epipolar_check.png", epipolar_check_image(left, right, pl, pr))
         if len(pl):
             info["epipolar_median_row_error_px"] = float(np.median(np.abs(pl[:, 1] - pr[:, 1])))
+    else:  # given as rectified: say so when SIFT matches disagree
+        pl, pr = sift_matches(left, right)
+        if len(pl) >= MIN_MATCHES:
+            row_error = float(np.median(np.abs(pl[:, 1] - pr[:, 1])))
+            info["epipolar_median_row_error_px"] = row_error
+            if row_error > 1.0:
+                info["warnings"].append(
+                    f"the pair looks unrectified: SIFT matches are {row_error:.1f} px off-row (median); "
+                    "pass --calib FILE or --uncalibrated to rectify it first")
     width = left.shape[-1]
     if max_disp is None:
         if info["rectified"] is None and depth_calib is not None and depth_calib.ndisp:
@@ -214,36 +319,86 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
             hint = int(16 * math.ceil(max(rect.disparity_range[1] * MARGIN + 4, 1.0) / 16))
             max_disp, source = cap_max_disp(hint, width), "inlier SIFT matches of the rectification"
         else:
-            if rect is None:
-                pl, pr = sift_matches(left, right)
             max_disp, source = estimate_max_disp(pl, pr, width), "SIFT matches"
             if max_disp is None:
                 max_disp, source = cap_max_disp(64, width), "default (too few SIFT matches to estimate)"
         info["max_disp_source"] = source
     info["max_disp"] = int(max_disp)
+    min_disp = int(st.min_disp)
+    if min_disp >= max_disp:
+        raise StereoInputError(f"--min-disp: expected less than the maximum disparity {max_disp}, got {min_disp}")
+    info["min_disp"] = min_disp
+    if min_disp:
+        right, right_content = shift_right(right, right_content, min_disp)
 
     fn = matchers.get_matcher(method, **options)
-    with torch.no_grad(), Stopwatch() as clock:
-        out = fn(left, right, int(max_disp))
+    try:
+        with torch.no_grad(), Stopwatch() as clock:
+            out = fn(left, right, int(max_disp - min_disp))
+    except (MemoryError, RuntimeError) as e:
+        if isinstance(e, RuntimeError) and "not enough memory" not in str(e) and "out of memory" not in str(e):
+            raise
+        raise MemoryError(f"out of memory matching {width}x{left.shape[-2]} px over {max_disp - min_disp + 1} "
+                          "disparities: pass --scale 0.5 (or smaller) or a smaller --max-disp") from None
     info["seconds"] = clock.seconds
-    if fill:
+    # padding (no source content) is never an answer, before or after filling
+    content = content_valid(out.disparity, left_content, right_content)
+    padded = not bool(content.all())
+    if padded or min_disp:
+        out.valid = out.valid & content
+    confidence = out.confidence
+    if confidence is None and out.uncertainty is not None:
+        confidence = torch.exp(-out.uncertainty.float())
+    if st.fill:
         from stereonet.cli.eval import apply_fill
 
         info["density_before_fill"] = 100.0 * float(out.valid.float().mean())
         out = apply_fill(out)
-    disp, valid = out.disparity[0, 0].float().cpu(), out.valid[0, 0].cpu()
+        if padded or min_disp:
+            out.valid = out.valid & content
+    disparity = out.disparity + min_disp if min_disp else out.disparity
+    disp, valid = disparity[0, 0].float().cpu(), out.valid[0, 0].cpu()
     info["density"] = 100.0 * float(valid.float().mean())
-    write_disparity_pfm(out_dir / "disparity.pfm", disp, valid)
-    viz.save_png(out_dir / "disparity.png", viz.colorize_disparity(disp.numpy(), max_disp, valid.numpy()))
+    if min_disp < 0:  # negative disparities are answers here: plain PFM, inf where invalid
+        write_pfm(out_dir / "disparity.pfm", torch.where(valid, disp, torch.full_like(disp, math.inf)).numpy())
+    else:
+        write_disparity_pfm(out_dir / "disparity.pfm", disp, valid)
+    viz.save_png(out_dir / "disparity.png", viz.colorize_disparity(disp.numpy() - min_disp, max_disp - min_disp,
+                                                                   valid.numpy()))
+    info["disparity_png_scale_px"] = [min_disp, int(max_disp)]
+    if confidence is not None:
+        conf = torch.where(out.valid, confidence.float(), torch.zeros_like(confidence.float()))[0, 0].cpu()
+        write_disparity_pfm(out_dir / "confidence.pfm", conf.clamp(0, 1))
+        write_image(out_dir / "confidence.png", conf.clamp(0, 1)[None])
     if depth_calib is not None:
         from stereonet.geometry import disparity_to_depth, disparity_to_points
 
-        depth = disparity_to_depth(out.disparity.double(), depth_calib, valid=out.valid)  # 0 = no depth
-        write_disparity_pfm(out_dir / "depth.pfm", depth[0, 0], depth[0, 0] > 0)
-        points, colors = disparity_to_points(out.disparity, out.valid, depth_calib, left)
+        depth = disparity_to_depth(disparity.double(), depth_calib, valid=out.valid)  # 0 = no depth
+        has_depth = depth[0, 0] > 0
+        write_disparity_pfm(out_dir / "depth.pfm", depth[0, 0], has_depth)
+        unit = st.unit or "unit of the calibration's baseline (unknown: pass --unit)"
+        info["units"]["depth"] = unit
+        if st.unit is not None:
+            mm = (depth[0, 0] * MM_PER_UNIT[st.unit]).round().clamp(0, 65535)
+            from stereonet.io.atomic import atomic_write_bytes
+            from stereonet.io.image import encode_image
+
+            depth_mm = mm.to(torch.int64).numpy().astype(np.uint16)
+            atomic_write_bytes(out_dir / "depth_mm.png", encode_image(out_dir / "depth_mm.png", depth_mm))
+            info["units"]["depth_mm.png"] = "uint16 millimetres, 0 = no depth (KITTI/RealSense convention)"
+        viz.save_png(out_dir / "depth.png", viz.colorize_depth(depth[0, 0].numpy(), st.unit or "?",
+                                                               has_depth.numpy()))
+        points, colors = disparity_to_points(disparity, out.valid, depth_calib, left)
+        info["cloud_frame"] = "rectified left camera"
+        if rect is not None and rect.R1 is not None and st.cloud_frame == "original":
+            points = points @ rect.R1.to(points.dtype).to(points.device)  # X_orig = R1^T X_rect (rows)
+            info["cloud_frame"] = "original left camera"
         write_ply(out_dir / "cloud.ply", points, colors)
         info["points"] = int(len(points))
-        info["depth_unit"] = "unit of the calibration baseline"
+        info["units"]["cloud.ply"] = unit
+        info["depth_unit"] = unit
+    for message in info["warnings"]:
+        print(f"{PROG}: warning: {pair.left.name}: {message}", file=sys.stderr)
     from stereonet.io import atomic_write_text
 
     atomic_write_text(out_dir / "info.json", json.dumps(info, indent=2) + "\n")
@@ -269,6 +424,17 @@ def build_parser() -> OneLineParser:
     p.add_argument("--fill", action="store_true",
                    help="fill invalid pixels (occlusions, LR failures) along scanlines for a dense map")
     p.add_argument("--no-progress", action="store_true", help="no progress bar in batch mode")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="downscale both images by S (0 < S <= 1) first; outputs are for the scaled images")
+    p.add_argument("--min-disp", type=int, default=0,
+                   help="smallest disparity searched (negative for rigs with converging cameras; default 0)")
+    p.add_argument("--alpha", type=float, default=1.0,
+                   help="rectification crop as OpenCV's alpha: 0 = only pixels both views cover, 1 = keep all")
+    p.add_argument("--unit", choices=sorted(MM_PER_UNIT), default=None,
+                   help="unit of the calibration's baseline (default: mm for Middlebury calib.txt, m for KITTI, "
+                        "else unknown and no depth_mm.png)")
+    p.add_argument("--cloud-frame", choices=("rectified", "original"), default="rectified",
+                   help="frame of cloud.ply when the pair is rectified first (default: rectified left camera)")
     return p
 
 
@@ -280,6 +446,12 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
         raise FileExistsError(f"-o: {args.out} already exists (pass --overwrite to replace it)")
     if args.max_disp is not None and args.max_disp <= 0:
         raise ValueError(f"--max-disp: expected a positive integer, got {args.max_disp}")
+    if not 0 < args.scale <= 1:
+        raise ValueError(f"--scale: expected 0 < S <= 1, got {args.scale}")
+    if not 0 <= args.alpha <= 1:
+        raise ValueError(f"--alpha: expected 0 <= A <= 1, got {args.alpha}")
+    if args.max_disp is not None and args.min_disp >= args.max_disp:
+        raise ValueError(f"--min-disp: expected less than --max-disp {args.max_disp}, got {args.min_disp}")
     try:
         device = torch.device(args.device)
         torch.empty(0, device=device)
@@ -304,7 +476,26 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
         if not args.calib.is_file():
             raise FileNotFoundError(f"--calib: no such file: {args.calib}")
         calib = read_calibration(args.calib)
+        if args.unit is None:
+            args.unit = calibration_unit(args.calib)
     return pairs, method, options, calib, device
+
+
+def calibration_unit(path: Path) -> str | None:
+    """The baseline unit a calibration format implies: Middlebury ``calib.txt`` is in mm, KITTI in m;
+    an OpenCV FileStorage file may carry ``unit`` (as ``stereonet-calibrate`` writes it); else None."""
+    try:
+        text = path.read_text(errors="replace")
+    except OSError:
+        return None
+    if "baseline=" in text and "cam0=" in text:
+        return "mm"
+    if "P_rect_0" in text or text.lstrip().startswith("P0:"):
+        return "m"
+    import re
+
+    m = re.search(r'^\s*"?unit"?\s*:\s*"?(mm|cm|m)"?\s*,?\s*$', text, re.MULTILINE)
+    return m.group(1) if m else None
 
 
 def _publish(tmp: Path, out: Path) -> None:
@@ -330,6 +521,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     failures: list[str] = []
+    settings = Settings(fill=args.fill, scale=args.scale, min_disp=args.min_disp, alpha=args.alpha, unit=args.unit,
+                        cloud_frame=args.cloud_frame)
     try:
         from tqdm import tqdm
 
@@ -339,8 +532,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             pair_dir.mkdir(exist_ok=True)
             try:
                 process_pair(pair, pair_dir, method, options, args.max_disp, calib, args.calib,
-                             args.uncalibrated, device, args.fill)
-            except (*USER_ERRORS, ImportError, RuntimeError) as e:
+                             args.uncalibrated, device, settings=settings)
+            except (*USER_ERRORS, ImportError, RuntimeError, MemoryError) as e:
                 if not batch:
                     raise
                 fail(PROG, f"{pair.left.name}: {e}", 1)
@@ -355,6 +548,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return fail(PROG, e)
         if isinstance(e, ImportError):
             return fail(PROG, f"{e} (this part of stereonet is not installed)")
+        if isinstance(e, MemoryError):
+            return fail(PROG, e, 1)
         if isinstance(e, RuntimeError):  # the method itself failed (e.g. out of memory)
             return fail(PROG, f"--method {method}: {e}", 1)
         raise

@@ -41,6 +41,7 @@ from stereonet.geometry.epipolar import (
 from stereonet.geometry.rectify import (
     Rectification,
     apply_homography,
+    content_mask,
     hartley_homographies,
     rectification_maps,
     rectify_calibrated,
@@ -93,6 +94,7 @@ __all__ = [
     "project_to_essential",
     "projection_matrix",
     "rectification_maps",
+    "content_mask",
     "rectify_calibrated",
     "rectify_from_file",
     "rectify_points",

@@ -215,6 +215,16 @@ def rectification_maps(
     return src.reshape(out_h, out_w, 2).to(dtype)
 
 
+def content_mask(source_map: torch.Tensor, width: int, height: int) -> torch.Tensor:
+    """Which rectified pixels have source content: the pixel a :func:`rectification_maps` map samples lies
+    inside the ``width`` x ``height`` source image (pixel centres, ``0 <= x <= W - 1``, ``0 <= y <= H - 1``).
+
+    Returns a bool :math:`(H', W')` mask; pixels outside it are black padding in the warped image and must
+    be invalid in every downstream output (disparity, depth, cloud, filling)."""
+    x, y = source_map[..., 0], source_map[..., 1]
+    return (x >= -1e-3) & (x <= width - 1 + 1e-3) & (y >= -1e-3) & (y <= height - 1 + 1e-3)
+
+
 def warp_image(
     image: torch.Tensor,
     H: torch.Tensor | None = None,

@@ -135,12 +135,14 @@ def test_existing_output_needs_overwrite(pair_files, tmp_path, capsys):
     assert not (out / "keep.txt").exists() and (out / "disparity.pfm").is_file()
 
 
-@pytest.mark.parametrize("case", ["mismatched", "unreadable", "calib-size", "missing", "checkpoint", "method"])
+@pytest.mark.parametrize("case", ["mismatched", "unreadable", "calib-size", "missing", "checkpoint", "method",
+                                  "scale", "alpha", "min-disp"])
 def test_bad_input_one_line_and_nothing_written(case, pair_files, tmp_path, capsys):
     lp, rp = pair_files
     extra: list = ["--method", "opencv-sgbm", "--max-disp", "16"]
     needle = {"mismatched": "size", "unreadable": "right", "calib-size": "--calib", "missing": "LEFT",
-              "checkpoint": "--checkpoint", "method": "valid names"}[case]
+              "checkpoint": "--checkpoint", "method": "valid names", "scale": "--scale", "alpha": "--alpha",
+              "min-disp": "--min-disp"}[case]
     if case == "mismatched":
         cv2.imwrite(str(rp), np.zeros((40, 160, 3), np.uint8))
     elif case == "unreadable":
@@ -155,6 +157,12 @@ def test_bad_input_one_line_and_nothing_written(case, pair_files, tmp_path, caps
         extra += ["--checkpoint", ckpt]
     elif case == "method":
         extra = ["--method", "no-such-method"]
+    elif case == "scale":
+        extra += ["--scale", "1.5"]
+    elif case == "alpha":
+        extra += ["--alpha", "-0.1"]
+    elif case == "min-disp":
+        extra += ["--min-disp", "16"]
     out = tmp_path / "out"
     code, err = run_main(capsys, lp, rp, "-o", out, *extra)
     assert code == 2
@@ -186,7 +194,11 @@ def test_uncalibrated_rectifies_a_rotated_pair(shared_data, tmp_path, capsys):
     assert info["epipolar_median_row_error_px"] < 1.0
     assert 16 <= info["max_disp"] <= 64
     disp, valid = read_disparity(out / "disparity.pfm")
-    assert valid.mean() > 0.5
+    content = 1.0 - info["padding_percent"] / 100.0  # the rectified frame's share with source content
+    assert 0.3 < content < 1.0
+    assert 0.5 * content < valid.mean() <= content  # padding is never an answer
+    rectified = cv2.imread(str(out / "rectified_left.png"))
+    assert not valid[(rectified == 0).all(axis=2)[: valid.shape[0], : valid.shape[1]]].mean() > 0.05
 
 
 def test_too_few_matches_is_refused(tmp_path, capsys):
@@ -256,3 +268,106 @@ def test_batch_of_globs(tmp_path, capsys):
                          "--max-disp", "16")
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == ["scene0_L", "scene1_L"]
+
+
+def test_confidence_and_depth_outputs_with_units(pair_files, tmp_path, capsys):
+    from stereonet.io import read_disparity, read_pfm
+    from stereonet.io.image import read_array
+
+    out = tmp_path / "out"
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "sgm", "--calib", write_calib(tmp_path / "c.txt"))
+    assert code == 0, err
+    names = {p.name for p in out.iterdir()}
+    assert {"confidence.pfm", "confidence.png", "depth_mm.png", "depth.png"} <= names
+    conf = read_pfm(out / "confidence.pfm")
+    disp, valid = read_disparity(out / "disparity.pfm")
+    assert conf.shape == disp.shape and conf.min() >= 0 and conf.max() <= 1
+    assert (conf[~valid] == 0).all() and conf[valid].mean() > 0.05
+    info = json.loads((out / "info.json").read_text())
+    assert info["units"]["depth"] == "mm"  # Middlebury calib.txt: baseline in mm
+    depth = read_pfm(out / "depth.pfm")
+    mm = read_array(out / "depth_mm.png")
+    assert mm.dtype == np.uint16 and mm.shape == depth.shape
+    has = np.isfinite(depth)
+    assert (mm[~has] == 0).all()
+    np.testing.assert_allclose(mm[has], np.clip(np.round(depth[has]), 0, 65535), atol=0.51)
+    assert read_array(out / "depth.png").shape[1] > depth.shape[1]  # the colour bar beside the map
+
+
+def test_scale_halves_the_disparity(pair_files, tmp_path, capsys):
+    from stereonet.io import read_disparity
+
+    out = tmp_path / "out"
+    code, err = run_main(capsys, *pair_files, "-o", out, "--method", "sgm", "--scale", "0.5", "--max-disp", "16")
+    assert code == 0, err
+    disp, valid = read_disparity(out / "disparity.pfm")
+    assert disp.shape == (40, 80)
+    assert np.median(disp[valid]) == pytest.approx(SHIFT / 2, abs=0.5)
+    info = json.loads((out / "info.json").read_text())
+    assert info["scale"] == {"factor": 0.5, "input_size": [160, 80], "processed_size": [80, 40]}
+
+
+def test_negative_disparities_with_min_disp(tmp_path, capsys):
+    from stereonet.io import read_disparity
+
+    left, right = textured_pair()
+    lp, rp = tmp_path / "l.png", tmp_path / "r.png"
+    cv2.imwrite(str(lp), right)  # swapped views: every disparity is -SHIFT
+    cv2.imwrite(str(rp), left)
+    out = tmp_path / "out"
+    code, err = run_main(capsys, lp, rp, "-o", out, "--method", "sgm", "--min-disp", "-16", "--max-disp", "8")
+    assert code == 0, err
+    disp, valid = read_disparity(out / "disparity.pfm")
+    assert valid.mean() > 0.5
+    assert np.median(disp[valid]) == pytest.approx(-SHIFT, abs=0.5)
+    assert json.loads((out / "info.json").read_text())["min_disp"] == -16
+
+
+def test_unrectified_pair_given_as_rectified_warns(tmp_path, capsys):
+    left, right = textured_pair(h=160, w=200)
+    right = np.roll(right, 4, axis=0)  # 4 rows off: not a rectified pair
+    lp, rp = tmp_path / "l.png", tmp_path / "r.png"
+    cv2.imwrite(str(lp), left)
+    cv2.imwrite(str(rp), right)
+    out = tmp_path / "out"
+    code, err = run_main(capsys, lp, rp, "-o", out, "--method", "opencv-sgbm", "--max-disp", "16")
+    assert code == 0
+    assert "warning" in err and "off-row" in err
+    info = json.loads((out / "info.json").read_text())
+    assert info["epipolar_median_row_error_px"] == pytest.approx(4, abs=0.5)
+    assert any("--calib" in w for w in info["warnings"])
+    code, err = run_main(capsys, *map(str, (lp, lp)), "-o", tmp_path / "same", "--method", "opencv-sgbm",
+                         "--max-disp", "16")
+    assert code == 0 and "warning" not in err
+
+
+def test_unrectified_rig_padding_alpha_and_rectified_calibration(tmp_path, capsys):
+    """data_gen's unrectified rig: padding never valid (even with --fill), --alpha 0 crops it away,
+    the rectified rig is saved, and the cloud can be had in the original left-camera frame."""
+    from stereonet.io import read_disparity, read_ply
+
+    gen = tmp_path / "gen"
+    subprocess.run([sys.executable, "-m", "data_gen", "--out", str(gen), "--count", "1", "--seed", "3",
+                    "--unrectified", "--height", "128", "--width", "256"], check=True, capture_output=True)
+    scene = next(p for p in gen.iterdir() if p.is_dir())
+    args = [scene / "im0.png", scene / "im1.png", "--calib", scene / "calib.yaml", "--method", "sgm",
+            "--max-disp", "64"]
+    code, err = run_main(capsys, *args, "-o", tmp_path / "a1", "--fill", "--unit", "m")
+    assert code == 0, err
+    info = json.loads((tmp_path / "a1" / "info.json").read_text())
+    assert info["padding_percent"] > 1.0
+    disp, valid = read_disparity(tmp_path / "a1" / "disparity.pfm")
+    assert valid.mean() <= 1.0 - info["padding_percent"] / 100 + 1e-6  # filled, but not into the padding
+    fs = cv2.FileStorage(str(tmp_path / "a1" / "rectified_calib.yaml"), cv2.FILE_STORAGE_READ)
+    K, Q, R1 = fs.getNode("K").mat(), fs.getNode("Q").mat(), fs.getNode("R1").mat()
+    assert K.shape == (3, 3) and Q.shape == (4, 4) and fs.getNode("baseline").real() > 0
+    fs.release()
+    code, err = run_main(capsys, *args, "-o", tmp_path / "a0", "--alpha", "0")
+    assert code == 0, err
+    assert json.loads((tmp_path / "a0" / "info.json").read_text())["padding_percent"] < info["padding_percent"]
+    code, err = run_main(capsys, *args, "-o", tmp_path / "orig", "--fill", "--unit", "m", "--cloud-frame", "original")
+    assert code == 0, err
+    rect_pts, _ = read_ply(tmp_path / "a1" / "cloud.ply")
+    orig_pts, _ = read_ply(tmp_path / "orig" / "cloud.ply")
+    np.testing.assert_allclose(orig_pts, rect_pts @ R1, rtol=1e-4, atol=1e-4)  # X_orig = R1^T X_rect
+    assert json.loads((tmp_path / "orig" / "info.json").read_text())["cloud_frame"] == "original left camera"
