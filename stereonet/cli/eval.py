@@ -3,10 +3,14 @@
     python eval.py --methods A,B,...|all --data SPEC[,SPEC...] [--max-disp N] [--json FILE] [--plots DIR]
                    [--fill] [--shard i/n] [--budget SECONDS]
 
-SPEC is ``synthetic[:N]``, ``middlebury2001:DIR``, ``middlebury2003:DIR``, ``middlebury2014:DIR``,
-``kitti2012:DIR``, ``kitti2015:DIR``, ``folder:DIR``, or ``real`` (every dataset in ../shared/data, one table
-row per dataset). Datasets come from :func:`stereonet.data.load_dataset`, metrics from
-:func:`stereonet.metrics.evaluate`.
+SPEC is ``synthetic[:N]``, ``middlebury2001:DIR``, ``middlebury2003:DIR``, ``middlebury2006:DIR`` (2005 and
+2006 scenes, full/half/third size), ``middlebury2014:DIR``, ``kitti2012:DIR``, ``kitti2015:DIR``, ``eth3d:DIR``
+(two-view training), ``sceneflow[-clean|-final][-train|-test]:DIR`` (FlyingThings3D, Monkaa, Driving; final
+pass and every pair by default, ``-clean`` the clean pass, ``-train``/``-test`` FlyingThings3D's official
+split, e.g. ``sceneflow-clean-test:DIR``), ``folder:DIR``, or ``real`` (every dataset in ../shared/data, one
+table row per dataset). Datasets come from :func:`stereonet.data.load_dataset`, metrics from
+:func:`stereonet.metrics.evaluate`; a missing, truncated or corrupt dataset file is bad input (exit 2, one
+line naming the file).
 
 What the numbers mean:
 - Rates (bad-1/2/4, D1, density) are percentages 0-100. EPE is in pixels. Every metric is computed per pair
@@ -116,12 +120,14 @@ def expand_data_specs(text: str, shared: Path | None = None, notes: list[str] | 
 
 
 def dataset_label(spec: str) -> str:
-    """Short name for a table row: ``kitti2015:/a/b/kitti2015`` -> ``kitti2015``; ``folder:/x/y`` -> ``folder:y``."""
+    """Short name for a table row: ``kitti2015:/a/b/kitti2015`` -> ``kitti2015``; ``folder:/x/y`` -> ``folder:y``;
+    ``sceneflow-clean-test:/d/sceneflow`` -> ``sceneflow-clean-test`` (the folder named as the kind before its
+    options)."""
     kind, _, arg = spec.partition(":")
     if not arg or kind == "synthetic":
         return spec
     name = Path(arg.rstrip("/")).name
-    return kind if name == kind else f"{kind}:{name}"
+    return kind if name in (kind, kind.split("-")[0]) else f"{kind}:{name}"
 
 
 def parse_shard(text: str | None) -> tuple[int, int]:
@@ -435,8 +441,10 @@ def build_parser() -> OneLineParser:
     p = OneLineParser(prog=PROG, description="Evaluate stereo methods on datasets with ground truth: one table.")
     p.add_argument("--methods", required=True, help="comma-separated registered names, or 'all'")
     p.add_argument("--data", required=True,
-                   help="SPEC[,SPEC...]: synthetic[:N], middlebury2001:DIR, middlebury2003:DIR, middlebury2014:DIR, "
-                        "kitti2012:DIR, kitti2015:DIR, folder:DIR, or real (every dataset in ../shared/data)")
+                   help="SPEC[,SPEC...]: synthetic[:N], middlebury2001:DIR, middlebury2003:DIR, middlebury2006:DIR, "
+                        "middlebury2014:DIR, kitti2012:DIR, kitti2015:DIR, eth3d:DIR, "
+                        "sceneflow[-clean|-final][-train|-test]:DIR (default final pass, all pairs), folder:DIR, "
+                        "or real (every dataset in ../shared/data)")
     p.add_argument("--max-disp", type=int, default=None, help="disparity range (default: each pair's own)")
     p.add_argument("--json", type=Path, default=None, help="write the rows as a JSON list to this file")
     p.add_argument("--plots", type=Path, default=None, help="write per-pair panels and a bad-2 bar chart here")

@@ -1,10 +1,23 @@
 """Datasets: ``load_dataset(spec)`` -> a torch ``Dataset`` of item dicts (see :mod:`stereonet.data.base`).
 
 Specs (as in DESIGN.md): ``synthetic[:N]``, ``middlebury2001:DIR``, ``middlebury2003:DIR``,
-``middlebury2014:DIR``, ``kitti2012:DIR``, ``kitti2015:DIR``, ``folder:DIR`` and ``real`` (every dataset in
+``middlebury2006:DIR``, ``middlebury2014:DIR``, ``kitti2012:DIR``, ``kitti2015:DIR``, ``eth3d:DIR``,
+``sceneflow[-clean|-final][-train|-test]:DIR``, ``folder:DIR`` and ``real`` (every dataset in
 ``../shared/data`` beside the repository). DIR holds the scene folders (or is one scene); for KITTI it holds
-``training/``. A spec that does not exist or has the wrong layout raises a one-line
-:class:`~stereonet.checks.StereoInputError` naming the spec and what was expected.
+``training/``; for SceneFlow it holds ``frames_finalpass/`` (or ``frames_cleanpass/``) and ``disparity/``, or
+sub-folders that do (FlyingThings3D, Monkaa, Driving side by side).
+
+- ``middlebury2006:DIR``: Middlebury 2005 and 2006 scenes (``view1``/``view5``, ``disp1``/``disp5``) at full,
+  half or third size; the disparity scale comes from the ``FullSize``/``HalfSize``/``ThirdSize`` folder
+  (or the image width), see :func:`stereonet.data.layouts.middlebury2006_records`.
+- ``sceneflow:DIR`` reads the final pass and every pair; ``-clean`` picks the clean pass (``-final`` says
+  the default), ``-train``/``-test`` FlyingThings3D's official split (the ``TRAIN``/``TEST`` folders), in
+  that order: ``sceneflow-clean-test:DIR``.
+- ``eth3d:DIR``: the ETH3D two-view training scenes; ``mask0nocc.png`` gives the ``*_noc`` pixels.
+
+A spec that does not exist or has the wrong layout raises a one-line
+:class:`~stereonet.checks.StereoInputError` naming the spec and what was expected; a scene with a missing
+view or ground truth file, or a truncated or corrupt file, raises one naming the file.
 """
 
 from __future__ import annotations
@@ -25,16 +38,24 @@ from stereonet.data.base import (
     round_up_max_disp,
 )
 from stereonet.data.layouts import (
+    ETH3D_EXPECTED,
     FOLDER_EXPECTED,
     MIDDLEBURY2001_EXPECTED,
     MIDDLEBURY2003_EXPECTED,
+    MIDDLEBURY2006_EXPECTED,
     MIDDLEBURY2014_EXPECTED,
+    SCENEFLOW_EXPECTED,
+    SCENEFLOW_PASSES,
+    SCENEFLOW_SPLITS,
+    eth3d_records,
     folder_records,
     kitti_expected,
     kitti_records,
     middlebury2001_records,
     middlebury2003_records,
+    middlebury2006_records,
     middlebury2014_records,
+    sceneflow_records,
 )
 
 __all__ = [
@@ -50,12 +71,18 @@ DEFAULT_SYNTHETIC_COUNT = 8
 _READERS = {
     "middlebury2001": (middlebury2001_records, MIDDLEBURY2001_EXPECTED),
     "middlebury2003": (middlebury2003_records, MIDDLEBURY2003_EXPECTED),
+    "middlebury2006": (middlebury2006_records, MIDDLEBURY2006_EXPECTED),
     "middlebury2014": (middlebury2014_records, MIDDLEBURY2014_EXPECTED),
     "kitti2012": (lambda root: kitti_records(root, "kitti2012"), kitti_expected("kitti2012")),
     "kitti2015": (lambda root: kitti_records(root, "kitti2015"), kitti_expected("kitti2015")),
+    "eth3d": (eth3d_records, ETH3D_EXPECTED),
+    "sceneflow": (sceneflow_records, SCENEFLOW_EXPECTED),
     "folder": (folder_records, FOLDER_EXPECTED),
 }
 DATASET_KINDS = ("synthetic", *_READERS, "real")
+# How each kind is written in an error that lists them (the ones with options show them).
+_KIND_SYNTAX = {"synthetic": "synthetic[:N]", "real": "real",
+                "sceneflow": f"sceneflow[-{'|-'.join(SCENEFLOW_PASSES[::-1])}][-{'|-'.join(SCENEFLOW_SPLITS)}]:DIR"}
 # Folders of ../shared/data that ``real`` reads, each with the reader of the same name.
 _REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2014", "kitti2012", "kitti2015")
 
@@ -76,26 +103,39 @@ def load_dataset(spec: str) -> Dataset:
         raise StereoInputError(f"spec: expected a data spec like 'middlebury2014:DIR' or 'synthetic:8', got {spec!r}")
     spec = spec.strip()
     kind, sep, arg = spec.partition(":")
+    reader_kind = "sceneflow" if kind.startswith("sceneflow-") else kind
     if kind == "synthetic":
         return _synthetic(spec, arg if sep else None)
     if kind == "real":
         if sep:
             raise StereoInputError(f"data spec {spec!r}: 'real' takes no argument")
         return _real(spec)
-    if kind not in _READERS:
+    if reader_kind not in _READERS:
         raise StereoInputError(f"data spec {spec!r}: unknown kind {kind!r}; expected one of "
-                               f"{', '.join(k + ('[:N]' if k == 'synthetic' else '' if k == 'real' else ':DIR') for k in DATASET_KINDS)}")
+                               f"{', '.join(_KIND_SYNTAX.get(k, k + ':DIR') for k in DATASET_KINDS)}")
     if not arg:
         raise StereoInputError(f"data spec {spec!r}: expected {kind}:DIR with the folder after the colon")
     root = Path(arg).expanduser()
     if not root.is_dir():
         raise StereoInputError(f"data spec {spec!r}: folder {root} does not exist"
                                if not root.exists() else f"data spec {spec!r}: {root} is not a folder")
-    reader, expected = _READERS[kind]
+    reader, expected = _sceneflow_reader(spec, kind) if reader_kind == "sceneflow" else _READERS[kind]
     records = reader(root)
     if not records:
         raise StereoInputError(f"data spec {spec!r}: no pairs found in {root}; expected {expected}")
     return StereoPairDataset(records, spec)
+
+
+def _sceneflow_reader(spec: str, kind: str):
+    """``sceneflow[-clean|-final][-train|-test]`` -> (reader, expected) with the pass and split bound."""
+    parts = kind.split("-")[1:]
+    frames = parts.pop(0) if parts and parts[0] in SCENEFLOW_PASSES else SCENEFLOW_PASSES[0]
+    split = parts.pop(0) if parts and parts[0] in SCENEFLOW_SPLITS else None
+    if parts:
+        raise StereoInputError(f"data spec {spec!r}: unknown sceneflow option {'-'.join(parts)!r}; expected "
+                               f"{_KIND_SYNTAX['sceneflow']} (pass, then split)")
+    expected = SCENEFLOW_EXPECTED + (f", with a {split.upper()}/ folder in the path" if split else "")
+    return (lambda root: sceneflow_records(root, frames, split)), expected
 
 
 class _SyntheticItems(Dataset):

@@ -16,6 +16,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -32,8 +33,9 @@ DISPARITY_MULTIPLE = 16
 class PairRecord:
     """Where one pair's files are. ``disparity_scale`` applies to 8-bit/16-bit PNG/PGM ground truth.
 
-    Occlusion comes from, in order: ``occlusion_mask`` (Middlebury 2014 ``mask0nocc.png``: 128 = occluded),
-    ``noc_disparity`` (KITTI ``disp_noc``: valid in ``disp_occ`` but not in ``disp_noc`` = occluded), or a
+    Occlusion comes from, in order: ``occlusion_mask`` (read as ``occlusion_mask_kind`` says: Middlebury 2014
+    ``mask0nocc.png``, 128 = occluded; ETH3D ``mask0nocc.png``, 255 = visible and any other value on a pixel
+    with ground truth = occluded), ``noc_disparity`` (KITTI ``disp_noc``: valid in ``disp_occ`` but not in ``disp_noc`` = occluded), or a
     left-right check of ``disparity`` against the right-view ground truth ``right_disparity``.
     """
 
@@ -45,6 +47,7 @@ class PairRecord:
     right_disparity: Path | None = None
     noc_disparity: Path | None = None
     occlusion_mask: Path | None = None
+    occlusion_mask_kind: Literal["middlebury2014", "eth3d"] = "middlebury2014"
     calib: Path | None = None
 
 
@@ -82,7 +85,8 @@ def occlusion_from_lr_check(disp_left: np.ndarray, valid_left: np.ndarray, disp_
     return valid_left & ~consistent
 
 
-def _same_size(a: Path, a_shape: Sequence[int], b: Path, b_shape: Sequence[int]) -> None:
+def same_size(a: Path, a_shape: Sequence[int], b: Path, b_shape: Sequence[int]) -> None:
+    """Raise the one-line error naming ``b`` when its ``(H, W)`` differs from that of ``a``."""
     if tuple(a_shape) != tuple(b_shape):
         raise StereoInputError(f"{b}: expected the size of {a.name} (H, W) = {tuple(a_shape)}, got {tuple(b_shape)}")
 
@@ -97,20 +101,20 @@ def load_pair(rec: PairRecord) -> dict:
     item: dict = {"left": left, "right": right, "name": rec.name}
     if rec.disparity is not None:
         disp, valid = read_disparity(rec.disparity, rec.disparity_scale)
-        _same_size(rec.left, (h, w), rec.disparity, disp.shape)
+        same_size(rec.left, (h, w), rec.disparity, disp.shape)
         occ = None
         if rec.occlusion_mask is not None:
             mask = read_array(rec.occlusion_mask)
             mask = mask if mask.ndim == 2 else mask[..., 0]
-            _same_size(rec.left, (h, w), rec.occlusion_mask, mask.shape)
-            occ = valid & (mask == 128)
+            same_size(rec.left, (h, w), rec.occlusion_mask, mask.shape)
+            occ = valid & (mask != 255 if rec.occlusion_mask_kind == "eth3d" else mask == 128)
         elif rec.noc_disparity is not None:
             _, valid_noc = read_disparity(rec.noc_disparity, rec.disparity_scale)
-            _same_size(rec.left, (h, w), rec.noc_disparity, valid_noc.shape)
+            same_size(rec.left, (h, w), rec.noc_disparity, valid_noc.shape)
             occ = valid & ~valid_noc
         elif rec.right_disparity is not None:
             disp_r, valid_r = read_disparity(rec.right_disparity, rec.disparity_scale)
-            _same_size(rec.left, (h, w), rec.right_disparity, disp_r.shape)
+            same_size(rec.left, (h, w), rec.right_disparity, disp_r.shape)
             occ = occlusion_from_lr_check(disp, valid, disp_r, valid_r)
         item["disparity"] = torch.from_numpy(disp)[None]
         item["valid"] = torch.from_numpy(valid)[None]

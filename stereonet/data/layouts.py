@@ -1,15 +1,22 @@
-"""Readers for on-disk layouts: Middlebury 2001/2003/2014, KITTI 2012/2015, and a plain folder of pairs.
+"""Readers for on-disk layouts: Middlebury 2001/2003/2005-2006/2014, KITTI 2012/2015, SceneFlow (FlyingThings3D,
+Monkaa, Driving), ETH3D two-view, and a plain folder of pairs.
 
 Each ``*_records(root)`` returns a list of :class:`PairRecord`; an empty list means "not this layout" and
-:func:`stereonet.data.load_dataset` turns that into a one-line error saying what was expected.
+:func:`stereonet.data.load_dataset` turns that into a one-line error saying what was expected. A scene that is
+this layout but incomplete (a missing view or ground truth file) raises a one-line
+:class:`~stereonet.checks.StereoInputError` naming the missing file; truncated or corrupt files are found when
+the pair is read (:func:`stereonet.data.base.load_pair`, through :mod:`stereonet.io`).
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 
-from stereonet.data.base import PairRecord
+from stereonet.checks import StereoInputError
+from stereonet.data.base import PairRecord, same_size
+from stereonet.io import read_array
 
 IMAGE_EXTENSIONS = (".png", ".ppm", ".pgm", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -110,6 +117,187 @@ def middlebury2014_records(root: Path) -> list[PairRecord]:
             right_disparity=find_file(scene, "disp1GT", (".pfm",)) or find_file(scene, "disp1", (".pfm",)),
             occlusion_mask=find_file(scene, "mask0nocc", (".png",)),
             calib=calib if calib.is_file() else None))
+    return records
+
+
+# ------------------------------------------------------------------------------------ Middlebury 2005/2006
+MIDDLEBURY2006_EXPECTED = ("scene folders with view1.png, view5.png and disp1.png (optional disp5.png), inside "
+                           "FullSize/, HalfSize/ or ThirdSize/ folders (or DIR is one of those, or one scene)")
+# Official size folders -> disparity scale (disparity = value / scale), and the image widths of each size
+# (2005/2006 full-size views are 1240-1396 px wide; half and third size divide that by 2 and 3).
+_MB2006_SCALES = {"fullsize": 1.0, "halfsize": 2.0, "thirdsize": 3.0}
+_MB2006_WIDTHS = {1.0: (1200, 1440), 2.0: (600, 720), 3.0: (400, 480)}
+_MB2006_SIZE_NAMES = {1.0: "FullSize", 2.0: "HalfSize", 3.0: "ThirdSize"}
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """``(H, W)`` of an image file: from the PNG header (24 bytes) when it is a PNG, else by decoding it."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return int.from_bytes(head[20:24], "big"), int.from_bytes(head[16:20], "big")
+    return tuple(int(n) for n in read_array(path).shape[:2])
+
+
+def middlebury2006_scale(scene: Path, view1: Path) -> float:
+    """Disparity scale of a Middlebury 2005/2006 scene: 1 (FullSize), 2 (HalfSize) or 3 (ThirdSize).
+
+    Read from the nearest ``FullSize``/``HalfSize``/``ThirdSize`` folder above the scene, else from the width
+    of ``view1``. A folder name that the width contradicts (a half-size view in ``ThirdSize/``) raises.
+    """
+    folder = next((_MB2006_SCALES[p.lower()] for p in reversed(scene.parts) if p.lower() in _MB2006_SCALES), None)
+    width = image_size(view1)[1]
+    by_width = next((s for s, (lo, hi) in _MB2006_WIDTHS.items() if lo <= width <= hi), None)
+    if folder is not None and by_width is not None and folder != by_width:
+        raise StereoInputError(f"{view1}: width {width} px is {_MB2006_SIZE_NAMES[by_width]}, but the scene is in "
+                               f"a {_MB2006_SIZE_NAMES[folder]} folder (disparity scale {folder:g})")
+    if folder is None and by_width is None:
+        raise StereoInputError(f"{view1}: cannot tell the Middlebury 2005/2006 image size from the width {width} px "
+                               f"(full {_MB2006_WIDTHS[1.0]}, half {_MB2006_WIDTHS[2.0]}, third "
+                               f"{_MB2006_WIDTHS[3.0]}); put the scene in a FullSize/, HalfSize/ or ThirdSize/ folder")
+    return folder if folder is not None else by_width
+
+
+def middlebury2006_records(root: Path) -> list[PairRecord]:
+    """Middlebury 2005/2006 (Scharstein & Pal, CVPR 2007; Hirschmüller & Scharstein, CVPR 2007), two views.
+
+    Per scene ``view1.png`` (left), ``view5.png`` (right), ``disp1.png`` (8-bit, disparity = value / scale,
+    0 = unknown; scale 1, 2, 3 for full, half, third size, see :func:`middlebury2006_scale`) and optionally
+    ``disp5.png``, the right view's map, from which occlusion is derived by the left-right check
+    (:func:`~stereonet.data.base.occlusion_from_lr_check`). A scene with ``view1`` but no ``view5`` or
+    ``disp1`` raises. Pairs are named by their path below ``root`` (``HalfSize/Aloe``). ``dmin.txt`` (the
+    crop offset, needed for depth, not for disparity) is not read.
+    """
+    records = []
+    for scene in scene_folders(root, lambda p: find_file(p, "view1") is not None):
+        left = find_file(scene, "view1")
+        right = find_file(scene, "view5")
+        disp = find_file(scene, "disp1", (".png", ".pgm"))
+        for found, stem, what in ((right, "view5", "right view"), (disp, "disp1", "ground truth")):
+            if found is None:
+                raise StereoInputError(f"{scene / (stem + '.png')}: no such file (the {what} of {left.name}; a "
+                                       f"Middlebury 2005/2006 scene holds view1.png, view5.png and disp1.png)")
+        name = scene.relative_to(root).as_posix() if scene != root else root.name
+        records.append(PairRecord(name, left, right, disp, middlebury2006_scale(scene, left),
+                                  right_disparity=find_file(scene, "disp5", (".png", ".pgm"))))
+    return records
+
+
+# ------------------------------------------------------------------------------------ ETH3D
+ETH3D_EXPECTED = ("scene folders with im0.png, im1.png, disp0GT.pfm and mask0nocc.png (optional calib.txt), "
+                  "or those files in DIR itself")
+
+
+def eth3d_records(root: Path) -> list[PairRecord]:
+    """ETH3D two-view training layout (Schöps et al., CVPR 2017): ``disp0GT.pfm`` (inf = unknown),
+    ``mask0nocc.png`` (255 = non-occluded with ground truth; a pixel with ground truth and any other value is
+    occluded, which the ``*_noc`` metrics leave out), ``calib.txt`` (Middlebury format). A scene with the
+    images but no ``disp0GT.pfm`` (the test scenes have none), or a mask of another size than ``im0``, raises
+    here, before any pair is read."""
+    records = []
+    for scene in scene_folders(root, lambda p: bool(find_file(p, "im0") and find_file(p, "im1"))):
+        disp = find_file(scene, "disp0GT", (".pfm",))
+        if disp is None:
+            raise StereoInputError(f"{scene / 'disp0GT.pfm'}: no such file (the ground truth of im0; ETH3D "
+                                   f"test scenes have none, eth3d:DIR reads the training scenes)")
+        left, mask = find_file(scene, "im0"), find_file(scene, "mask0nocc", (".png",))
+        if mask is not None:
+            same_size(left, image_size(left), mask, image_size(mask))
+        calib = scene / "calib.txt"
+        records.append(PairRecord(_name(root, scene), left, find_file(scene, "im1"), disp, occlusion_mask=mask,
+                                  occlusion_mask_kind="eth3d", calib=calib if calib.is_file() else None))
+    return records
+
+
+# ------------------------------------------------------------------------------------ SceneFlow
+SCENEFLOW_PASSES = ("final", "clean")
+SCENEFLOW_SPLITS = ("train", "test")
+SCENEFLOW_EXPECTED = ("frames_finalpass/ (or frames_cleanpass/) and disparity/ in DIR or in each of its "
+                      "sub-folders, with frames_*pass/.../left|right/NNNN.png and disparity/.../left|right/NNNN.pfm")
+
+
+def _sceneflow_bases(root: Path) -> list[Path]:
+    def is_base(p: Path) -> bool:
+        return any((p / f"frames_{x}pass").is_dir() for x in SCENEFLOW_PASSES)
+
+    if is_base(root):
+        return [root]
+    return sorted(p for p in root.iterdir() if p.is_dir() and is_base(p))
+
+
+def _left_folders(frames: Path) -> list[Path]:
+    """Every ``left`` folder below ``frames`` that holds files (not descending into ``left``/``right``)."""
+    found = []
+    for dirpath, dirnames, _ in os.walk(frames):
+        here = Path(dirpath)
+        if here.name in ("left", "right"):
+            dirnames[:] = []
+            if here.name == "left":
+                found.append(here)
+            continue
+        dirnames.sort()
+    return sorted(found)
+
+
+def sceneflow_records(root: Path, frames: str = "final", split: str | None = None) -> list[PairRecord]:
+    """SceneFlow (Mayer et al., CVPR 2016): FlyingThings3D, Monkaa and Driving.
+
+    ``root`` holds ``frames_finalpass/`` or ``frames_cleanpass/`` and ``disparity/`` (or sub-folders that each
+    do, e.g. ``flyingthings3d/``, ``monkaa/``, ``driving/``). Every ``frames_<frames>pass/<...>/left/NNNN.png``
+    is a pair with ``<...>/right/NNNN.png``, ground truth ``disparity/<...>/left/NNNN.pfm`` and, when present,
+    the right view's ``disparity/<...>/right/NNNN.pfm``, from which occlusion is derived by the left-right check
+    (:func:`~stereonet.data.base.occlusion_from_lr_check`).
+
+    Args:
+        frames: ``"final"`` (rendered with motion blur and depth of field) or ``"clean"``.
+        split: None for every pair, ``"train"`` or ``"test"`` for FlyingThings3D's official split (the pairs
+            with a ``TRAIN``/``TEST`` folder in their path); a tree with neither folder raises (Monkaa and
+            Driving have no split).
+    Pairs are named by their path below ``root`` without ``frames_*pass/`` and ``left/``
+    (``TRAIN/A/0000/0006``). Left frames without their right view or left disparity raise, naming the file.
+    """
+    if frames not in SCENEFLOW_PASSES:
+        raise StereoInputError(f"frames: expected one of {', '.join(SCENEFLOW_PASSES)}, got {frames!r}")
+    if split is not None and split not in SCENEFLOW_SPLITS:
+        raise StereoInputError(f"split: expected None or one of {', '.join(SCENEFLOW_SPLITS)}, got {split!r}")
+    records: list[PairRecord] = []
+    seen_split = False
+    for base in _sceneflow_bases(root):
+        frames_dir = base / f"frames_{frames}pass"
+        if not frames_dir.is_dir():
+            other = next(x for x in SCENEFLOW_PASSES if x != frames)
+            raise StereoInputError(f"{frames_dir}: no such folder (there is frames_{other}pass/; its spec is "
+                                   f"sceneflow-{other}:DIR)")
+        disp_dir = base / "disparity"
+        prefix = "" if base == root else f"{base.name}/"
+        for left_dir in _left_folders(frames_dir):
+            rel = left_dir.parent.relative_to(frames_dir)
+            tags = {p.lower() for p in rel.parts} & set(SCENEFLOW_SPLITS)
+            seen_split = seen_split or bool(tags)
+            if split is not None and split not in tags:
+                continue
+            lefts = sorted(p for p in left_dir.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
+            if not lefts:
+                continue
+            right_dir, disp_left_dir = left_dir.parent / "right", disp_dir / rel / "left"
+            if not disp_left_dir.is_dir():
+                raise StereoInputError(f"{disp_left_dir}: no such folder (the ground truth of the {len(lefts)} "
+                                       f"left frames in {left_dir}; SceneFlow frames need disparity/ beside "
+                                       f"frames_{frames}pass/)")
+            disp_right_dir = disp_dir / rel / "right"
+            for left in lefts:
+                right, disp = right_dir / left.name, disp_left_dir / f"{left.stem}.pfm"
+                for path, what in ((right, "right view"), (disp, "ground truth disparity")):
+                    if not path.is_file():
+                        raise StereoInputError(f"{path}: no such file (the {what} of {left})")
+                disp_r = disp_right_dir / f"{left.stem}.pfm"
+                name = prefix + "/".join((*rel.parts, left.stem))
+                records.append(PairRecord(name, left, right, disp,
+                                          right_disparity=disp_r if disp_r.is_file() else None))
+    if split is not None and records == [] and not seen_split:
+        raise StereoInputError(f"{root}: no TRAIN/ or TEST/ folders below frames_{frames}pass/; the official "
+                               f"split is FlyingThings3D's (Monkaa and Driving have none), use sceneflow:DIR "
+                               f"for every pair")
     return records
 
 
