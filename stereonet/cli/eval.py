@@ -248,7 +248,12 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
               dynamic_ncols=True) as bar:
         for label, ds in datasets:
             for idx in indices[label]:
-                item = ds[idx]
+                try:
+                    item = ds[idx]
+                except BaseException:
+                    bar.leave = False  # a bad file ends the run: its one-line error stands alone on stderr
+                    bar.close()
+                    raise
                 name = str(item.get("name", idx))
                 md = int(max_disp if max_disp is not None else item["max_disp"])
                 left, right = _batch(item["left"]).float(), _batch(item["right"]).float()

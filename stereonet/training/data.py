@@ -142,28 +142,34 @@ class PooledCurriculumStream(IterableDataset):
     Rendering a pair costs about as much as a training step on CPU, so every ``reuse`` items one new pair
     is rendered (at the difficulty in the shared ``difficulty`` value, set by the curriculum) and replaces
     the oldest one in a pool of ``pool_size``; items are drawn at random from the pool and augmented
-    (swap-flip, photometric). Rendering seeds are ``(seed + 7919 * start, worker, counter)``: a pure function
-    of the start offset (the global step when training (re)starts), so DataLoader workers never repeat
-    each other and a resumed run does not replay the first pairs.
+    (swap-flip, photometric). Rendering seeds are ``(seed + 7919 * start, rank, worker, counter)``: a pure
+    function of the start offset (the global step when training (re)starts), the DDP rank and the
+    DataLoader worker, so ranks and workers never repeat each other's pairs (pair index
+    ``(counter * workers + worker) * world_size + rank``) and a resumed run does not replay the first
+    pairs. With one process (rank 0 of 1) the stream is the same as before ranks were folded in.
     """
 
     def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
-                 augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None) -> None:
+                 augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None,
+                 rank: int = 0, world_size: int = 1) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
         self.supersample, self.disparity_range = supersample, disparity_range
         self.pool_size, self.reuse, self.augment = max(1, pool_size), max(1, reuse), augment
         self.difficulty, self.start = difficulty, start  # multiprocessing Values shared with workers
+        if not 0 <= rank < world_size:
+            raise ValueError(f"rank: expected 0 <= rank < world_size ({world_size}), got {rank}")
+        self.rank, self.world_size = int(rank), int(world_size)
 
     def __iter__(self):
         info = get_worker_info()
         wid, nworkers = (info.id, info.num_workers) if info is not None else (0, 1)
         stream_seed = self.seed + 7919 * int(self.start.value)
-        g = torch.Generator().manual_seed(stream_seed * 1009 + wid)
+        g = torch.Generator().manual_seed(stream_seed * 1009 + wid + 1_000_003 * self.rank)
         pool: list[dict] = []
         counter = 0
         while True:
             if len(pool) < self.pool_size or counter % self.reuse == 0:
-                index = counter * nworkers + wid
+                index = (counter * nworkers + wid) * self.world_size + self.rank
                 level = int(self.difficulty.value)
                 max_disp = sample_max_disp(self.source, level, self.width, self.disparity_range, g)
                 ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height, self.width,
@@ -267,9 +273,11 @@ class SyntheticStereoDataModule(L.LightningDataModule):
 
     def train_dataloader(self) -> DataLoader:
         hp = self.hparams
+        trainer = getattr(self, "trainer", None)
+        rank, world = (trainer.global_rank, trainer.world_size) if trainer is not None else (0, 1)
         stream = PooledCurriculumStream(hp.source, hp.seed, hp.height, hp.width, hp.pool_size, hp.reuse,
                                         hp.augment, self._difficulty, self._start, hp.supersample,
-                                        hp.disparity_range)
+                                        hp.disparity_range, rank=rank, world_size=world)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

@@ -260,3 +260,26 @@ def test_channels_last_training_is_the_same_maths(module_cls, one_thread):
     again = module_cls(max_disp=16, channels=8)
     again.load_state_dict(fast.state_dict())
     torch.testing.assert_close(again.compute(batch)[0], loss_plain, rtol=1e-5, atol=1e-5)
+
+
+def test_ranks_see_different_pairs():
+    import itertools
+    import multiprocessing as mp
+
+    from stereonet.training.data import PooledCurriculumStream
+
+    def items(rank: int, world: int) -> list[torch.Tensor]:
+        stream = PooledCurriculumStream("data_gen", 3, 32, 64, pool_size=1, reuse=1, augment=False,
+                                        difficulty=mp.Value("i", 1), start=mp.Value("l", 0), supersample=1,
+                                        rank=rank, world_size=world)
+        return [it["left"] for it in itertools.islice(iter(stream), 3)]
+
+    single, r0, r1 = items(0, 1), items(0, 2), items(1, 2)
+    # one process renders pair indices 0, 1, 2; two ranks split them: rank 0 -> 0, 2, 4 and rank 1 -> 1, 3, 5
+    torch.testing.assert_close(r0[0], single[0])
+    torch.testing.assert_close(r1[0], single[1])
+    torch.testing.assert_close(r0[1], single[2])
+    assert all(not torch.equal(a, b) for a, b in zip(r0, r1))
+    with pytest.raises(ValueError, match="rank"):
+        PooledCurriculumStream("data_gen", 3, 32, 64, 1, 1, False, mp.Value("i", 1), mp.Value("l", 0), rank=2,
+                               world_size=2)
