@@ -118,6 +118,27 @@ def photometric_augment(item: dict, generator: torch.Generator) -> dict:
     return item
 
 
+def vertical_jitter(item: dict, max_offset: float, generator: torch.Generator) -> dict:
+    """Resample the right view ``dy`` rows down, ``dy`` uniform in [-max_offset, max_offset] (bilinear,
+    border rows repeated): a small rectification error as real rigs have (HITNet and CREStereo train with
+    it), so a matcher cannot rely on rows matching to a fraction of a pixel. Ground truth is unchanged
+    (disparity is the horizontal offset)."""
+    if max_offset <= 0:
+        return item
+    import torch.nn.functional as F
+
+    dy = (2.0 * float(torch.rand(1, generator=generator)) - 1.0) * max_offset
+    img = item["right"]  # CxHxW
+    c, h, w = img.shape
+    ys = torch.arange(h, dtype=img.dtype) + dy
+    xs = torch.arange(w, dtype=img.dtype)
+    grid = torch.stack(torch.meshgrid(2 * xs / max(w - 1, 1) - 1, 2 * ys / max(h - 1, 1) - 1, indexing="xy"), -1)
+    out = dict(item)
+    out["right"] = F.grid_sample(img[None], grid[None], mode="bilinear", padding_mode="border",
+                                 align_corners=True)[0]
+    return out
+
+
 def swap_flip(item: dict) -> dict:
     """Mirror a pair: new left = flipped right, new right = flipped left (a valid rectified pair whose
     left-referenced ground truth is the flipped right-view ground truth). Needs ``disparity_right`` and
@@ -151,8 +172,9 @@ class PooledCurriculumStream(IterableDataset):
 
     def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
                  augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None,
-                 rank: int = 0, world_size: int = 1) -> None:
+                 rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
+        self.vertical_jitter = float(vertical_jitter)
         self.supersample, self.disparity_range = supersample, disparity_range
         self.pool_size, self.reuse, self.augment = max(1, pool_size), max(1, reuse), augment
         self.difficulty, self.start = difficulty, start  # multiprocessing Values shared with workers
@@ -182,6 +204,8 @@ class PooledCurriculumStream(IterableDataset):
                 if float(torch.rand(1, generator=g)) < 0.5:
                     item = swap_flip(item)
                 item = photometric_augment(item, g)
+                if self.vertical_jitter > 0:
+                    item = vertical_jitter(item, self.vertical_jitter, g)
             yield _training_fields(item)
 
 
@@ -231,13 +255,16 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         supersample: data_gen anti-aliasing rays per pixel side (2 = like real photos; 1 is ~4x faster).
         disparity_range: when set, each training pair's disparity range is drawn between its difficulty's
             and this value (see :func:`sample_max_disp`); validation pairs keep their difficulty's.
+        vertical_jitter: with ``augment``, the right view of each training item is shifted by up to this
+            many rows (:func:`vertical_jitter`; 0 = off, the default).
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
                  pool_size: int = 32, reuse: int = 4, val_pairs: int = 16, val_height: int | None = None,
                  val_width: int | None = None, seed: int = 0, val_seed: int = 900_000,
                  curriculum_fraction: float = 0.5, min_difficulty: int = 0, num_workers: int = 0,
-                 augment: bool = True, supersample: int = 2, disparity_range: int | None = None) -> None:
+                 augment: bool = True, supersample: int = 2, disparity_range: int | None = None,
+                 vertical_jitter: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters()
         if source not in ("data_gen", "random-shift"):
@@ -277,7 +304,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         rank, world = (trainer.global_rank, trainer.world_size) if trainer is not None else (0, 1)
         stream = PooledCurriculumStream(hp.source, hp.seed, hp.height, hp.width, hp.pool_size, hp.reuse,
                                         hp.augment, self._difficulty, self._start, hp.supersample,
-                                        hp.disparity_range, rank=rank, world_size=world)
+                                        hp.disparity_range, rank=rank, world_size=world,
+                                        vertical_jitter=hp.vertical_jitter)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

@@ -283,3 +283,19 @@ def test_ranks_see_different_pairs():
     with pytest.raises(ValueError, match="rank"):
         PooledCurriculumStream("data_gen", 3, 32, 64, 1, 1, False, mp.Value("i", 1), mp.Value("l", 0), rank=2,
                                world_size=2)
+
+
+def test_vertical_jitter_shifts_the_right_view_by_a_fraction_of_a_row():
+    from stereonet.training.data import vertical_jitter
+
+    ramp = torch.arange(20, dtype=torch.float32).view(1, 20, 1).expand(3, 20, 16).clone()
+    item = {"left": ramp.clone(), "right": ramp.clone(), "disparity": torch.ones(1, 20, 16)}
+    shifts = []
+    for seed in range(8):
+        out = vertical_jitter(item, 1.5, torch.Generator().manual_seed(seed))
+        diff = out["right"][:, 2:-2] - ramp[:, 2:-2]  # interior rows: exactly dy (bilinear on a ramp)
+        assert float(diff.std()) < 1e-4 and abs(float(diff.mean())) <= 1.5
+        torch.testing.assert_close(out["left"], ramp)
+        shifts.append(float(diff.mean()))
+    assert len({round(s, 3) for s in shifts}) == 8  # a new offset every time
+    assert vertical_jitter(item, 0.0, torch.Generator()) is item
