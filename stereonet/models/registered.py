@@ -34,7 +34,8 @@ def _cached(path: str, mtime: float, expected: str):
     return load_weights(path, expected)[0]
 
 
-NETWORK_OF = {"dispnet": "dispnet", "smd": "smd", "siamese": "siamese", "siamese-sgm": "siamese"}
+NETWORK_OF = {"dispnet": "dispnet", "smd": "smd", "siamese": "siamese", "siamese-sgm": "siamese",
+              "siamese-census-sgm": "siamese"}
 
 
 def weights_available(name: str) -> bool:
@@ -160,3 +161,22 @@ def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, 
         valid = consistent
     confidence = cost_margin_confidence(agg) * consistent.to(agg.dtype)  # 0 where the LR check failed
     return StereoOutput(disp, valid, confidence=confidence, cost_volume=agg, extras={"lr_consistent": consistent})
+
+
+# Weight of the learned cost in siamese-census-sgm, chosen on data_gen validation pairs only (see the model card)
+LEARNED_WEIGHT = 0.75
+
+
+@register("siamese-census-sgm", kind="learned", needs_weights=True,
+          description="sgm on census 7x7 + the Siamese learned cost (weights/siamese.pt), sgm's back end")
+def siamese_census_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                               learned_weight: float = LEARNED_WEIGHT, **options) -> StereoOutput:
+    """``sgm`` (same penalties, selection, filters and confidence; options as for ``sgm``) on the cost
+    ``(1 - a) * census + a * 24 * (1 - cos)``: the census Hamming distance (0..48 bits) and the Siamese
+    cost (0..2) brought to the same range, ``a = learned_weight`` (0 = plain ``sgm``)."""
+    from stereonet.optimize.registered_local import sgm
+
+    if not 0.0 <= learned_weight <= 1.0:
+        raise ValueError(f"learned_weight: expected a value in [0, 1], got {learned_weight!r}")
+    learned = _siamese_cost(left, right, max_disp, checkpoint).clamp(max=2.0)  # BxDxHxW
+    return sgm(left, right, max_disp, extra_cost=(1.0 - learned_weight, 24.0 * learned_weight, learned), **options)

@@ -152,7 +152,11 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     if cost_name not in ("census", "census_ad"):
         cost_opts.pop("census_window", None)
     # the registry validated left/right: no second check of the images
+    extra = cost_opts.pop("extra_cost", None)
     vol = build_cost_volume_checked(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
+    if extra is not None:  # (w_own, w_extra, volume): a learned cost mixed in (siamese-census-sgm)
+        w_own, w_extra, other = extra
+        vol = w_own * vol + w_extra * other.to(vol)
     agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, _guide_checked=True)
     del vol
     out = select_and_filter(agg, **back)

@@ -71,3 +71,25 @@ def test_registry_does_not_import_lightning():
     code = "import sys, stereonet.models.registered; print('lightning' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_siamese_census_sgm_mixes_the_learned_cost_into_sgm():
+    import torch
+
+    from stereonet.matchers import match
+    from stereonet.models.registered import weights_available
+
+    if not weights_available("siamese-census-sgm"):
+        pytest.skip("weights/siamese.pt is not present")
+    g = torch.Generator().manual_seed(0)
+    big = torch.rand(1, 3, 40, 110, generator=g)
+    left, right = big[..., 10:100].contiguous(), big[..., 16:106].contiguous()  # disparity 6 everywhere
+    plain = match("sgm", left, right, 16)
+    zero = match("siamese-census-sgm", left, right, 16, learned_weight=0.0)
+    torch.testing.assert_close(zero.disparity, plain.disparity)  # a = 0 is sgm itself
+    mixed = match("siamese-census-sgm", left, right, 16)
+    inner = mixed.disparity[..., 4:-4, 20:-4][mixed.valid[..., 4:-4, 20:-4]]
+    assert inner.numel() > 100 and float((inner - 6).abs().median()) < 0.5
+    assert mixed.confidence is not None
+    with pytest.raises(ValueError, match="learned_weight"):
+        match("siamese-census-sgm", left, right, 16, learned_weight=1.5)
