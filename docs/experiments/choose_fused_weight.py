@@ -1,0 +1,44 @@
+"""Choose the fused-cost weight on synthetic validation only (data_gen seeds 5150/5151, not the benchmark)."""
+import functools
+import sys
+
+import data_gen
+from stereonet.cli.eval import format_table, run_evaluation
+from stereonet.cost.volume import build_cost_volume_checked
+from stereonet.data import _SyntheticItems
+from stereonet.matchers import register
+from stereonet.models import registered as reg
+from stereonet.optimize import registered_local as rl
+from stereonet.optimize.sgm import sgm_aggregate
+
+ckpt = sys.argv[1]
+alphas = [float(x) for x in sys.argv[2].split(",")]
+specs = sys.argv[3].split(";") if len(sys.argv) > 3 else ["val2", "val4"]
+
+def fused(left, right, max_disp, a=0.5):
+    vol = build_cost_volume_checked(left, right, max_disp, cost="census", window=1, census_window=7)
+    s = reg._siamese_cost(left, right, max_disp, ckpt).clamp(max=2.0)
+    vol = (1 - a) * vol + a * 24.0 * s
+    agg = sgm_aggregate(vol, 2.0, 48.0, paths=8, image=left, p2_alpha=20.0, _guide_checked=True)
+    return rl.select_and_filter(agg, subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3,
+                                speckle_size=100, speckle_diff=1.0, fill=False)
+
+methods = ["sgm", "siamese-sgm"]
+for a in alphas:
+    n = f"fused{a}"
+    register(n, kind="learned", description="exp")(functools.partial(fused, a=a))
+    methods.append(n)
+
+def load(spec):
+    if spec == "val2":
+        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5150, difficulty=2), spec)
+    if spec == "val4":
+        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5151, difficulty=4), spec)
+    from stereonet.data import load_dataset
+    return load_dataset(spec)
+
+ev = run_evaluation(methods, specs, fill=True, progress=False, load=load,
+                    options={"siamese-sgm": {"checkpoint": ckpt}})
+print(format_table(ev.rows))
+for p in ev.pairs:
+    print("PAIR", p.method, p.dataset, p.pair, None if p.metrics is None else round(p.metrics["bad2"], 2))

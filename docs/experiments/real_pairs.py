@@ -1,0 +1,35 @@
+"""Per-pair real bad-2 (after the shared fill) for methods with optional checkpoints: label=method[@ckpt]."""
+import json
+import statistics
+import sys
+
+from stereonet import matchers
+from stereonet.cli.eval import format_table, run_evaluation
+from stereonet.matchers import register
+
+methods, labels = [], []
+for arg in sys.argv[1].split(","):
+    label, _, rest = arg.partition("=")
+    name, _, ckpt = rest.partition("@")
+    if ckpt:
+        fn = matchers.get_matcher(name, checkpoint=ckpt)
+        register(label, kind="learned", description="exp")(lambda l, r, m, fn=fn: fn(l, r, m))
+        methods.append(label)
+    else:
+        methods.append(name)
+specs = sys.argv[2].split(";") if len(sys.argv) > 2 else ["real"]
+
+ev = run_evaluation(methods, expand_data_specs(",".join(specs)), fill=True, progress=False)
+print(format_table(ev.rows))
+table = {}
+for p in ev.pairs:
+    table.setdefault(p.method, {})[f"{p.dataset}/{p.pair}"] = None if p.metrics is None else p.metrics
+pairs = list(next(iter(table.values())).keys())
+print("| method | " + " | ".join(pairs) + " | median bad-2 | median SEE | median AUSE |")
+for m, row in table.items():
+    b = [row[k]["bad2"] for k in pairs]
+    see = [row[k]["see"] for k in pairs if row[k].get("see") == row[k].get("see")]
+    au = [row[k]["ause"] for k in pairs if "ause" in row[k]]
+    print(f"| {m} | " + " | ".join(f"{x:.1f}" for x in b) + f" | {statistics.median(b):.1f} | "
+          f"{statistics.median(see):.2f} | " + (f"{statistics.median(au):.2f}" if au else "-") + " |")
+json.dump({m: row for m, row in table.items()}, open(sys.argv[3] if len(sys.argv) > 3 else "/tmp/exp/pairs.json", "w"), indent=1)
