@@ -134,7 +134,8 @@ def test_ransac_rigid_ignores_outliers():
     Q = P @ R.T + t
     Q[:20] = torch.rand(20, 3, generator=g, dtype=torch.float64) * 3  # a third are wrong matches
     R_est, t_est, inl = ransac_rigid(P, Q, threshold=0.01)
-    assert rotation_error_deg(R_est, R) < 1e-6 and float((t_est - t).norm()) < 1e-6
+    # the matrices themselves (the angle via arccos cannot resolve below ~1e-6 degrees in float64)
+    assert float((R_est - R).abs().max()) < 1e-8 and float((t_est - t).norm()) < 1e-6
     assert inl[20:].all() and not inl[:20].any()
     with pytest.raises(StereoInputError, match="no rigid motion"):
         ransac_rigid(P, torch.rand(60, 3, generator=g, dtype=torch.float64) * 3, threshold=0.001)
