@@ -12,13 +12,17 @@ Formats (``read_calibration`` detects them from the extension and content):
 - OpenCV ``FileStorage`` YAML/JSON/XML as written by stereo calibration tools: ``K1``/``M1``/``cameraMatrix1``,
   ``D1``/``dist1``/``distCoeffs1``, the same for camera 2, ``R``, ``T``, and the image size as
   ``image_width``/``image_height`` or ``size``/``imageSize`` (``[width, height]``). OpenCV's ``R, T`` from
-  ``stereoCalibrate`` follow our convention ``X_r = R X_l + t``.
+  ``stereoCalibrate`` follow our convention ``X_r = R X_l + t``. OpenCV's stereo sample writes two files,
+  ``intrinsics.yml`` (M1, D1, M2, D2) and ``extrinsics.yml`` (R, T, R1, R2, P1, P2, Q): given either, the
+  other is read from the same folder and merged; they hold no image size (the images' size is used).
+  ``stereonet-calibrate`` (:mod:`stereonet.calibrate`) writes this format.
 """
 
 from __future__ import annotations
 
 import os
 import re
+from collections.abc import Mapping
 from pathlib import Path
 
 import cv2
@@ -180,8 +184,44 @@ def _node_array(node, path: Path, key: str) -> np.ndarray:
 
 
 def read_opencv_calibration(path: str | os.PathLike) -> Calibration:
-    """Read an OpenCV ``FileStorage`` stereo calibration (YAML, JSON or XML; see the module docstring)."""
+    """Read an OpenCV ``FileStorage`` stereo calibration (YAML, JSON or XML; see the module docstring).
+
+    OpenCV's stereo sample (``stereo_calib.cpp``) splits its result in two files beside each other:
+    ``intrinsics.yml`` (M1, D1, M2, D2) and ``extrinsics.yml`` (R, T, R1, R2, P1, P2, Q). Given either, the
+    other is looked up in the same folder (the name with "intrinsics" and "extrinsics" swapped, the same
+    extension first) and the two are merged; R1, R2, P1, P2, Q are not read (the rig is rectified again
+    from R, T). Those files hold no image size, so ``image_size`` is None (the images' size is used).
+    """
     p = existing_file(path)
+    values = _opencv_values(p)
+    sibling = None
+    if any(name not in values for name in _REQUIRED):
+        sibling = _two_file_sibling(p)
+        if sibling is not None:
+            values = {**_opencv_values(sibling), **values}  # the file given wins where both have a key
+    for name in _REQUIRED:
+        if name not in values:
+            raise fail(p, _missing_key_message(p, name, sibling))
+    matrices = {}
+    for name, shape in _REQUIRED.items():
+        arr, key, source = values[name]
+        if arr.size != int(np.prod(shape)):
+            raise fail(source, f"malformed {key!r}: expected {'x'.join(map(str, shape))} values, got shape {arr.shape}")
+        matrices[name] = arr.reshape(shape)
+    D1 = values["D1"][0] if "D1" in values else None
+    D2 = values["D2"][0] if "D2" in values else None
+    size = values["size"][0] if "size" in values else None
+    doffs = values["doffs"][0] if "doffs" in values else 0.0
+    ndisp = values["ndisp"][0] if "ndisp" in values else None
+    return _build(p, matrices["K1"], matrices["K2"], matrices["R"], matrices["T"], size, D1, D2, doffs=doffs,
+                  ndisp=ndisp)
+
+
+_REQUIRED = {"K1": (3, 3), "K2": (3, 3), "R": (3, 3), "T": (3,)}
+
+
+def _opencv_values(p: Path) -> dict[str, tuple[object, str, Path]]:
+    """The calibration entries a FileStorage file holds: our name -> (value, key in the file, file)."""
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
         opened = fs.isOpened()
@@ -189,59 +229,88 @@ def read_opencv_calibration(path: str | os.PathLike) -> Calibration:
         raise fail(p, f"cannot parse as OpenCV FileStorage YAML/JSON/XML ({str(e).splitlines()[0][:120]})") from None
     if not opened:
         raise fail(p, "cannot open as OpenCV FileStorage YAML/JSON/XML")
+    values: dict[str, tuple[object, str, Path]] = {}
     try:
-        def find(name: str, required: bool = True):
-            for key in _KEY_ALIASES[name]:
-                node = fs.getNode(key)
-                if not node.empty() and not node.isNone():
-                    return _node_array(node, p, key), key
-            if required:
-                raise fail(p, f"missing key {name!r} (also accepted: {', '.join(_KEY_ALIASES[name][1:])})")
-            return None, None
+        def present(key: str):
+            node = fs.getNode(key)
+            return None if node.empty() or node.isNone() else node
 
-        def matrix(name: str, shape: tuple[int, ...], required: bool = True):
-            arr, key = find(name, required)
-            if arr is None:
-                return None
-            if arr.size != int(np.prod(shape)):
-                raise fail(p, f"malformed {key!r}: expected {'x'.join(map(str, shape))} values, got shape {arr.shape}")
-            return arr.reshape(shape)
-
-        K1, K2 = matrix("K1", (3, 3)), matrix("K2", (3, 3))
-        R, T = matrix("R", (3, 3)), matrix("T", (3,))
-        D1, _ = find("D1", required=False)
-        D2, _ = find("D2", required=False)
-        size = None
-        w_node, h_node = fs.getNode("image_width"), fs.getNode("image_height")
-        if not w_node.empty() and not h_node.empty():
-            size = (int(w_node.real()), int(h_node.real()))
+        for name, aliases in _KEY_ALIASES.items():
+            for key in aliases:
+                node = present(key)
+                if node is not None:
+                    values[name] = (_node_array(node, p, key), key, p)
+                    break
+        w_node, h_node = present("image_width"), present("image_height")
+        if w_node is not None and h_node is not None:
+            values["size"] = ((int(w_node.real()), int(h_node.real())), "image_width", p)
         else:
             for key in ("size", "imageSize", "image_size"):
-                node = fs.getNode(key)
-                if not node.empty() and not node.isNone():
+                node = present(key)
+                if node is not None:
                     wh = _node_array(node, p, key).reshape(-1)
                     if wh.size != 2:
                         raise fail(p, f"malformed {key!r}: expected [width, height], got {wh.size} values")
-                    size = (int(wh[0]), int(wh[1]))
+                    values["size"] = ((int(wh[0]), int(wh[1])), key, p)
                     break
-        doffs_node, ndisp_node = fs.getNode("doffs"), fs.getNode("ndisp")
-        doffs = doffs_node.real() if not doffs_node.empty() else 0.0
-        ndisp = int(ndisp_node.real()) if not ndisp_node.empty() else None
+        doffs_node, ndisp_node = present("doffs"), present("ndisp")
+        if doffs_node is not None:
+            values["doffs"] = (doffs_node.real(), "doffs", p)
+        if ndisp_node is not None:
+            values["ndisp"] = (int(ndisp_node.real()), "ndisp", p)
     finally:
         fs.release()
-    return _build(p, K1, K2, R, T, size, D1, D2, doffs=doffs, ndisp=ndisp)
+    return values
 
 
-def write_opencv_calibration(path: str | os.PathLike, calib: Calibration) -> None:
+_TWO_FILE_WORDS = {"intrinsics": "extrinsics", "extrinsics": "intrinsics"}
+
+
+def _two_file_sibling(p: Path) -> Path | None:
+    """The other file of OpenCV's two-file stereo output beside ``p`` (intrinsics <-> extrinsics), if any."""
+    match = re.search("intrinsics|extrinsics", p.stem, re.I)
+    if match is None:
+        return None
+    word = match.group(0)
+    other = _TWO_FILE_WORDS[word.lower()]
+    other = other.upper() if word.isupper() else other.capitalize() if word[0].isupper() else other
+    stem = p.stem[:match.start()] + other + p.stem[match.end():]
+    suffixes = [p.suffix] + [e for e in _OPENCV_EXTENSIONS if e != p.suffix.lower()]
+    return next((c for c in (p.with_name(stem + s) for s in suffixes) if c.is_file()), None)
+
+
+def _missing_key_message(p: Path, name: str, sibling: Path | None) -> str:
+    aliases = _KEY_ALIASES[name][1:]
+    message = f"missing key {name!r}" + (f" (also accepted: {', '.join(aliases)})" if aliases else "")
+    if sibling is not None:
+        return message + f" in it or in {sibling.name} beside it"
+    match = re.search("intrinsics|extrinsics", p.stem, re.I)
+    if match is not None:
+        other = p.stem[:match.start()] + _TWO_FILE_WORDS[match.group(0).lower()] + p.stem[match.end():]
+        return message + f"; OpenCV's two-file output needs {other}{p.suffix} beside it, not found"
+    return message
+
+
+def write_opencv_calibration(path: str | os.PathLike, calib: Calibration,
+                             extra: Mapping[str, object] | None = None) -> None:
     """Write ``calib`` as OpenCV FileStorage (.yml/.yaml/.json/.xml by extension), atomically.
 
     Keys: K1, D1, K2, D2, R, T, image_width, image_height, doffs, ndisp (those that are set); readable by
-    :func:`read_opencv_calibration` and by ``cv2.FileStorage``.
+    :func:`read_opencv_calibration` and by ``cv2.FileStorage``. ``extra``: more entries written after them
+    (str, int, float or numpy array values; names must not be one the reader takes for a calibration key).
     """
     if not isinstance(calib, Calibration):
         raise TypeError(f"calib: expected a Calibration, got {type(calib).__name__}")
     if Path(path).suffix.lower() not in _OPENCV_EXTENSIONS:
         raise ValueError(f"path: expected one of {', '.join(_OPENCV_EXTENSIONS)}, got {str(path)!r}")
+    reserved = {k for aliases in _KEY_ALIASES.values() for k in aliases} | {
+        "image_width", "image_height", "size", "imageSize", "image_size", "doffs", "ndisp"}
+    extra = dict(extra or {})
+    for key, value in extra.items():
+        if key in reserved:
+            raise ValueError(f"extra: {key!r} is a calibration key, expected another name")
+        if not isinstance(value, (str, int, float, np.ndarray)) or isinstance(value, bool):
+            raise TypeError(f"extra[{key!r}]: expected str, int, float or numpy array, got {type(value).__name__}")
 
     def arr(t: torch.Tensor) -> np.ndarray:
         return t.detach().cpu().numpy().astype(np.float64)
@@ -262,6 +331,8 @@ def write_opencv_calibration(path: str | os.PathLike, calib: Calibration) -> Non
         fs.write("doffs", float(calib.doffs))
         if calib.ndisp is not None:
             fs.write("ndisp", int(calib.ndisp))
+        for key, value in extra.items():
+            fs.write(key, value.astype(np.float64) if isinstance(value, np.ndarray) else value)
         fs.release()
 
 
