@@ -137,3 +137,102 @@ def test_missing_file_and_bad_write(tmp_path):
         read_calibration(tmp_path / "none.txt")
     with pytest.raises(ValueError, match="path: expected one of"):
         write_opencv_calibration(tmp_path / "c.txt", Calibration.rectified(500, 320, 240, 0.1))
+
+
+# ------------------------------------------------------------------------------------------ OpenCV two-file
+# What OpenCV's samples/cpp/stereo_calib.cpp writes: intrinsics.yml (M1, D1, M2, D2) and extrinsics.yml
+# (R, T, R1, R2, P1, P2, Q), no image size.
+TWO_FILE_K1 = np.array([[500.0, 0.0, 81.0], [0.0, 500.0, 59.0], [0.0, 0.0, 1.0]])
+TWO_FILE_K2 = np.array([[505.0, 0.0, 79.0], [0.0, 505.0, 61.0], [0.0, 0.0, 1.0]])
+TWO_FILE_R = cv2.Rodrigues(np.array([0.002, 0.01, -0.003]))[0]
+TWO_FILE_T = np.array([[-0.12], [0.001], [0.002]])
+
+
+def write_two_files(folder, intrinsics="intrinsics.yml", extrinsics="extrinsics.yml"):
+    folder.mkdir(parents=True, exist_ok=True)
+    D1, D2 = np.array([[-0.1, 0.02, 0.0, 0.0, 0.0]]), np.array([[-0.08, 0.01, 0.0, 0.0, 0.0]])
+    if intrinsics is not None:
+        fs = cv2.FileStorage(str(folder / intrinsics), cv2.FILE_STORAGE_WRITE)
+        for key, value in (("M1", TWO_FILE_K1), ("D1", D1), ("M2", TWO_FILE_K2), ("D2", D2)):
+            fs.write(key, value)
+        fs.release()
+    if extrinsics is not None:
+        R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(TWO_FILE_K1, D1, TWO_FILE_K2, D2, (160, 120), TWO_FILE_R,
+                                                    TWO_FILE_T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)
+        fs = cv2.FileStorage(str(folder / extrinsics), cv2.FILE_STORAGE_WRITE)
+        for key, value in (("R", TWO_FILE_R), ("T", TWO_FILE_T), ("R1", R1), ("R2", R2), ("P1", P1), ("P2", P2),
+                           ("Q", Q)):
+            fs.write(key, value)
+        fs.release()
+    return folder
+
+
+@pytest.mark.parametrize("given", ["intrinsics.yml", "extrinsics.yml"])
+def test_opencv_two_file_output_is_read_from_either_file(tmp_path, given):
+    write_two_files(tmp_path)
+    c = read_calibration(tmp_path / given)
+    assert np.allclose(c.K1.numpy(), TWO_FILE_K1) and np.allclose(c.K2.numpy(), TWO_FILE_K2)
+    assert np.allclose(c.R.numpy(), TWO_FILE_R) and np.allclose(c.t.numpy(), TWO_FILE_T.ravel())
+    assert c.dist1[0] == pytest.approx(-0.1) and c.dist2[0] == pytest.approx(-0.08)
+    assert c.image_size is None  # not in those files: infer.py takes it from the images
+
+
+def test_opencv_two_file_names_keep_prefix_case_and_mixed_extensions(tmp_path):
+    write_two_files(tmp_path, "rigA_Intrinsics.yaml", "rigA_Extrinsics.yml")
+    assert read_calibration(tmp_path / "rigA_Intrinsics.yaml").baseline == pytest.approx(0.12, rel=1e-3)
+    assert read_calibration(tmp_path / "rigA_Extrinsics.yml").K1[0, 0] == 500.0
+
+
+@pytest.mark.parametrize("present,given,msg", [
+    ("intrinsics", "intrinsics.yml", r"intrinsics\.yml: missing key 'R'; OpenCV's two-file output needs "
+                                     r"extrinsics\.yml beside it, not found"),
+    ("extrinsics", "extrinsics.yml", r"extrinsics\.yml: missing key 'K1' \(also accepted: M1, cameraMatrix1, "
+                                     r"camera_matrix_1\); OpenCV's two-file output needs intrinsics\.yml beside it"),
+])
+def test_opencv_two_file_with_one_file_missing_names_the_other(tmp_path, present, given, msg):
+    write_two_files(tmp_path, intrinsics="intrinsics.yml" if present == "intrinsics" else None,
+                    extrinsics="extrinsics.yml" if present == "extrinsics" else None)
+    with pytest.raises(FileFormatError, match=msg):
+        read_calibration(tmp_path / given)
+
+
+def test_missing_key_without_aliases_has_no_empty_alias_list(tmp_path):
+    (tmp_path / "c.yml").write_text("K1: [1, 0, 0, 0, 1, 0, 0, 0, 1]\nK2: [1, 0, 0, 0, 1, 0, 0, 0, 1]\nT: [1, 0, 0]\n")
+    with pytest.raises(FileFormatError) as info:
+        read_calibration(tmp_path / "c.yml")
+    assert str(info.value).endswith("c.yml: missing key 'R'")
+    (tmp_path / "c.yml").write_text("K1: [1, 0, 0, 0, 1, 0, 0, 0, 1]\nR: [1, 0, 0, 0, 1, 0, 0, 0, 1]\nT: [1, 0, 0]\n")
+    with pytest.raises(FileFormatError, match=r"missing key 'K2' \(also accepted: M2, cameraMatrix2, camera_matrix_2\)$"):
+        read_calibration(tmp_path / "c.yml")
+
+
+def test_write_extra_keys_round_trip(tmp_path):
+    calib = Calibration.rectified(500, 320, 240, 0.1, image_size=(640, 480))
+    write_opencv_calibration(tmp_path / "c.yaml", calib, extra={"unit": "m", "rms_px": 0.25,
+                                                                "per_view": np.ones((2, 3))})
+    fs = cv2.FileStorage(str(tmp_path / "c.yaml"), cv2.FILE_STORAGE_READ)
+    assert fs.getNode("unit").string() == "m" and fs.getNode("rms_px").real() == 0.25
+    assert fs.getNode("per_view").mat().shape == (2, 3)
+    fs.release()
+    assert read_calibration(tmp_path / "c.yaml").baseline == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="extra: 'size' is a calibration key"):
+        write_opencv_calibration(tmp_path / "d.yaml", calib, extra={"size": 3})
+    assert not (tmp_path / "d.yaml").exists()
+
+
+def test_infer_takes_the_image_size_of_a_two_file_calibration_from_the_images(tmp_path):
+    from stereonet.cli.infer import main
+
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur((rng.random((120, 176)) * 255).astype(np.uint8), (3, 3), 0)
+    cv2.imwrite(str(tmp_path / "left.png"), texture[:, 8:168])
+    cv2.imwrite(str(tmp_path / "right.png"), texture[:, 4:164])
+    write_two_files(tmp_path / "calib")
+    out = tmp_path / "out"
+    code = main([str(tmp_path / "left.png"), str(tmp_path / "right.png"), "-o", str(out), "--method", "opencv-sgbm",
+                 "--max-disp", "16", "--calib", str(tmp_path / "calib" / "intrinsics.yml")])
+    assert code == 0
+    import json
+
+    assert json.loads((out / "info.json").read_text())["rectified"] == "calibrated"
+    assert (out / "rectified_left.png").is_file() and (out / "depth.pfm").is_file()

@@ -13,7 +13,8 @@ calibrated, then the pair (see :mod:`stereonet.calibrate.solve`); views with an 
 are dropped and the calibration made again. A table of the per-view RMS reprojection error goes to stdout.
 
 Writes ``CALIB.yaml`` (OpenCV FileStorage: K1, D1, K2, D2, R, T, image_width, image_height, and what the
-calibration was made from) and ``CALIB_preview.png`` beside it (or ``--preview PATH``): the best view
+calibration was made from: board, square, unit (with ``--unit``), rms_px, views_used, views_given,
+per_view_rms_px (one row ``[view, left px, right px]`` per used view), rectified_row_error_px) and ``CALIB_preview.png`` beside it (or ``--preview PATH``): the best view
 rectified with the new calibration, with epipolar lines and the board corners, which should lie on them.
 Both are written atomically and only once everything has succeeded. Bad input (no board found, too few
 views, images of different sizes, LEFT and RIGHT of different lengths...) ends in one line on stderr and
@@ -160,6 +161,7 @@ def _run(args) -> int:
 
     from stereonet.calibrate import CalibrationError, calibrate_rig, rectified_preview
     from stereonet.calibration import write_opencv_calibration
+    from stereonet.checks import StereoInputError
     from stereonet.cli.infer import find_pairs
     from stereonet.io import read_image
     from stereonet.io.atomic import atomic_path
@@ -183,8 +185,12 @@ def _run(args) -> int:
     used = [v for v in result.views if v.used]
     best = min(used, key=lambda v: max(v.rms_left, v.rms_right))
     pair = pairs[best.index]
-    shown = rectified_preview(read_image(pair.left), read_image(pair.right), result.calib,
-                              result.left[best.index], result.right[best.index])
+    try:
+        shown = rectified_preview(read_image(pair.left), read_image(pair.right), result.calib,
+                                  result.left[best.index], result.right[best.index])
+    except StereoInputError as e:  # e.g. a rectifying rotation that turns part of the image behind the camera
+        raise CalibrationError(f"the calibration does not rectify view {best.index} ({pair.left.name}) for the "
+                               f"preview: {e}") from None
     calib = result.calib
     per_view = np.array([[v.index, v.rms_left, v.rms_right] for v in used], dtype=np.float64)
     extra: dict = {"calibrated_with": PROG, "board": f"{board.cols}x{board.rows}", "board_kind": board.kind,
