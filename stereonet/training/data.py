@@ -257,6 +257,9 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             and this value (see :func:`sample_max_disp`); validation pairs keep their difficulty's.
         vertical_jitter: with ``augment``, the right view of each training item is shifted by up to this
             many rows (:func:`vertical_jitter`; 0 = off, the default).
+        val_vertical_jitter: the right view of validation pair ``i`` is shifted by a fixed offset drawn
+            uniformly in [-v, v] rows (seeded by ``val_seed``; the same for every run), so that selection
+            sees the small rectification errors every real rig has (0 = off, the default).
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
@@ -264,7 +267,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  val_width: int | None = None, seed: int = 0, val_seed: int = 900_000,
                  curriculum_fraction: float = 0.5, min_difficulty: int = 0, num_workers: int = 0,
                  augment: bool = True, supersample: int = 2, disparity_range: int | None = None,
-                 vertical_jitter: float = 0.0) -> None:
+                 vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters()
         if source not in ("data_gen", "random-shift"):
@@ -283,7 +286,11 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             for i in range(hp.val_pairs):  # a fixed mix of difficulties, same for every run
                 level = round(top * i / max(hp.val_pairs - 1, 1))
                 ds = _make_dataset(hp.source, hp.val_pairs, hp.val_seed, level, vh, vw, hp.supersample)
-                self.val_items.append(_training_fields(ds[i]))
+                item = _training_fields(ds[i])
+                if hp.val_vertical_jitter > 0:
+                    item = vertical_jitter(item, hp.val_vertical_jitter,
+                                           torch.Generator().manual_seed(hp.val_seed * 7919 + i))
+                self.val_items.append(item)
 
     def set_progress(self, progress: float, start_step: int | None = None) -> None:
         """Set the training difficulty from the progress in [0, 1] (called by the curriculum callback);

@@ -299,3 +299,20 @@ def test_vertical_jitter_shifts_the_right_view_by_a_fraction_of_a_row():
         shifts.append(float(diff.mean()))
     assert len({round(s, 3) for s in shifts}) == 8  # a new offset every time
     assert vertical_jitter(item, 0.0, torch.Generator()) is item
+
+
+def test_validation_jitter_is_fixed_per_pair_and_leaves_ground_truth_alone():
+    from stereonet.training.data import SyntheticStereoDataModule
+
+    def items(v):
+        dm = SyntheticStereoDataModule(source="random-shift", height=24, width=32, val_pairs=4,
+                                       val_vertical_jitter=v)
+        dm.setup("fit")
+        return dm.val_items
+
+    clean, a, b = items(0.0), items(1.0), items(1.0)
+    for c, x, y in zip(clean, a, b):
+        torch.testing.assert_close(x["right"], y["right"])  # the same offsets in every run
+        torch.testing.assert_close(x["left"], c["left"])
+        torch.testing.assert_close(x["disparity"], c["disparity"])
+    assert sum(not torch.allclose(x["right"], c["right"]) for c, x in zip(clean, a)) >= 3
