@@ -42,9 +42,9 @@ REFERENCE = {"sgm": "opencv-sgbm", **{m: "opencv-bm" for m in BM}}
 
 
 def load_cones() -> tuple[torch.Tensor, torch.Tensor]:
-    from stereonet.data import load_dataset, shared_data_dir
+    from stereonet.data import load_dataset, real_data_dir
 
-    ds = load_dataset(f"middlebury2003:{shared_data_dir() / 'middlebury2003'}")
+    ds = load_dataset(f"middlebury2003:{real_data_dir()[0] / 'middlebury2003'}")
     item = next(ds[i] for i in range(len(ds)) if "cones" in str(ds[i]["name"]))
     return item["left"][None].float(), item["right"][None].float()
 

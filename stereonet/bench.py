@@ -319,9 +319,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         methods = parse_methods(args.methods, skipped)
         if args.synthetic < 0:
             raise ValueError(f"--synthetic: expected a count >= 0, got {args.synthetic}")
-        from stereonet.data import shared_data_dir
-
-        real = [] if args.no_real or shared_data_dir() is None else expand_data_specs("real")
+        real = [] if args.no_real else expand_data_specs("real")
         synthetic = f"synthetic:{args.synthetic}" if args.synthetic else None
         specs = real + ([synthetic] if synthetic else [])
         if not specs:

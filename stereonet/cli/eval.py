@@ -58,8 +58,6 @@ from stereonet.types import StereoOutput
 
 PROG = "eval.py"
 METRICS = ("epe", "bad1", "bad2", "bad4", "d1", "density")
-# Dataset kinds in ../shared/data that ``real`` expands to, in table order.
-REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2014", "kitti2012", "kitti2015")
 
 
 # ----------------------------------------------------------------------------------------------- parsing
@@ -91,7 +89,8 @@ def parse_methods(text: str, skipped: list[str] | None = None) -> list[str]:
 
 
 def expand_data_specs(text: str, shared: Path | None = None, notes: list[str] | None = None) -> list[str]:
-    """Split ``SPEC[,SPEC...]`` and expand ``real`` into one spec per dataset folder in ../shared/data.
+    """Split ``SPEC[,SPEC...]`` and expand ``real`` into one spec per dataset folder in ../shared/data (or,
+    without one, in the bundled pairs: :func:`stereonet.data.real_data_dir`).
 
     ``real`` is optional data: when the folder is missing and other specs are given, it is left out and a
     note is appended to ``notes`` (so ``make demo`` runs on a machine without it); alone, it is an error.
@@ -101,16 +100,21 @@ def expand_data_specs(text: str, shared: Path | None = None, notes: list[str] | 
     for s in parts:
         if s == "real":
             if shared is None:
-                from stereonet.data import shared_data_dir
+                from stereonet.data import real_data_dir
 
-                shared = shared_data_dir()
-            if shared is None or not shared.is_dir():
+                shared, source = real_data_dir()
+                if source == "bundled" and notes is not None:
+                    notes.append(f"real: no ../shared/data (or STEREONET_SHARED_DATA); the Middlebury pairs "
+                                 f"bundled in {shared} are used")
+            if not shared.is_dir():
                 missing = f"no shared real data folder ({shared or '../shared/data'}; set STEREONET_SHARED_DATA)"
                 if parts == ["real"]:
                     raise FileNotFoundError(f"--data real: {missing}")
                 if notes is not None:
                     notes.append(f"real left out: {missing}")
                 continue
+            from stereonet.data import REAL_KINDS  # the kinds ``real`` expands to, in table order
+
             specs += [f"{k}:{shared / k}" for k in REAL_KINDS if (shared / k).is_dir()]
         else:
             specs.append(s)

@@ -3,7 +3,8 @@
 Specs (as in DESIGN.md): ``synthetic[:N]``, ``middlebury2001:DIR``, ``middlebury2003:DIR``,
 ``middlebury2006:DIR``, ``middlebury2014:DIR``, ``kitti2012:DIR``, ``kitti2015:DIR``, ``eth3d:DIR``,
 ``sceneflow[-clean|-final][-train|-test]:DIR``, ``folder:DIR`` and ``real`` (every dataset in
-``../shared/data`` beside the repository). DIR holds the scene folders (or is one scene); for KITTI it holds
+``../shared/data`` beside the repository; without one, the four Middlebury pairs bundled in
+``stereonet/data/bundled``). DIR holds the scene folders (or is one scene); for KITTI it holds
 ``training/``; for SceneFlow it holds ``frames_finalpass/`` (or ``frames_cleanpass/``) and ``disparity/``, or
 sub-folders that do (FlyingThings3D, Monkaa, Driving side by side).
 
@@ -60,7 +61,7 @@ from stereonet.data.layouts import (
 
 __all__ = [
     "BENCHMARK_SEED", "DATASET_KINDS", "PairRecord", "StereoPairDataset", "collate_stereo", "item_max_disp",
-    "load_dataset", "load_pair", "occlusion_from_lr_check", "round_up_max_disp", "shared_data_dir",
+    "REAL_KINDS", "load_dataset", "load_pair", "occlusion_from_lr_check", "real_data_dir", "round_up_max_disp", "shared_data_dir",
 ]
 
 # Seed of the synthetic benchmark set: fixed, and far from the small seeds training configs use, so the
@@ -84,7 +85,7 @@ DATASET_KINDS = ("synthetic", *_READERS, "real")
 _KIND_SYNTAX = {"synthetic": "synthetic[:N]", "real": "real",
                 "sceneflow": f"sceneflow[-{'|-'.join(SCENEFLOW_PASSES[::-1])}][-{'|-'.join(SCENEFLOW_SPLITS)}]:DIR"}
 # Folders of ../shared/data that ``real`` reads, each with the reader of the same name.
-_REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2014", "kitti2012", "kitti2015")
+REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2014", "kitti2012", "kitti2015")
 
 
 def shared_data_dir() -> Path | None:
@@ -177,17 +178,30 @@ def _synthetic(spec: str, count_text: str | None) -> Dataset:
     return _SyntheticItems(make(count=count, seed=BENCHMARK_SEED), spec)
 
 
-def _real(spec: str) -> Dataset:
+def bundled_data_dir() -> Path:
+    """The real pairs shipped inside the package (four Middlebury 2001/2003 scenes, see its README)."""
+    return Path(__file__).resolve().parent / "bundled"
+
+
+def real_data_dir() -> tuple[Path, str]:
+    """Where ``real`` reads: (the shared data folder, "shared"), else (the bundled pairs, "bundled").
+    The two are never mixed: a shared folder, whatever it holds, replaces the bundled pairs."""
     shared = shared_data_dir()
-    if shared is None:
-        raise StereoInputError(f"data spec {spec!r}: no ../shared/data folder beside the repository "
-                               f"(or set STEREONET_SHARED_DATA)")
+    return (shared, "shared") if shared is not None else (bundled_data_dir(), "bundled")
+
+
+def _real(spec: str) -> Dataset:
+    """Every folder of ``REAL_KINDS`` in :func:`real_data_dir` (so a fresh clone evaluates on the bundled
+    real photos)."""
+    root, source = real_data_dir()
     records: list[PairRecord] = []
-    for kind in _REAL_KINDS:
-        if (shared / kind).is_dir():
-            for r in _READERS[kind][0](shared / kind):
+    for kind in REAL_KINDS:
+        if (root / kind).is_dir():
+            for r in _READERS[kind][0](root / kind):
                 records.append(PairRecord(**{**r.__dict__, "name": f"{kind}/{r.name}"}))
     if not records:
-        raise StereoInputError(f"data spec {spec!r}: no datasets found in {shared}; expected sub-folders "
-                               f"{', '.join(_REAL_KINDS)}")
-    return StereoPairDataset(records, spec)
+        raise StereoInputError(f"data spec {spec!r}: no datasets found in {root}; expected sub-folders "
+                               f"{', '.join(REAL_KINDS)}")
+    dataset = StereoPairDataset(records, spec)
+    dataset.source = source
+    return dataset

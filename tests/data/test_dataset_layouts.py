@@ -336,3 +336,37 @@ def test_eval_bad_dataset_file_is_one_line_exit_2(tmp_path, capsys, kind, make):
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1, err
     assert err.startswith("eval.py: error:") and str(bad) in err
+
+
+def test_real_reads_the_bundled_middlebury_pairs_without_shared_data(monkeypatch):
+    import stereonet.data as data
+
+    monkeypatch.setattr(data, "shared_data_dir", lambda: None)
+    root, source = data.real_data_dir()
+    assert source == "bundled" and root == data.bundled_data_dir()
+    ds = data.load_dataset("real")
+    assert ds.source == "bundled"
+    names = sorted(str(ds[i]["name"]) for i in range(len(ds)))
+    assert names == ["middlebury2001/tsukuba", "middlebury2001/venus", "middlebury2003/cones",
+                     "middlebury2003/teddy"]
+    for i in range(len(ds)):
+        item = ds[i]
+        assert item["left"].shape == item["right"].shape and bool(item["valid"].any())
+    from stereonet.cli import eval as ev
+
+    notes: list[str] = []
+    specs = ev.expand_data_specs("real", notes=notes)
+    assert [s.split(":")[0] for s in specs] == ["middlebury2001", "middlebury2003"] and "bundled" in notes[0]
+
+
+def test_bundled_pairs_are_the_shared_files_unchanged():
+    import stereonet.data as data
+
+    shared = data.shared_data_dir()
+    if shared is None or not (shared / "middlebury2003").is_dir():
+        pytest.skip("no ../shared/data to compare the bundled copy with")
+    bundled = data.bundled_data_dir()
+    files = sorted(p.relative_to(bundled) for p in bundled.rglob("*") if p.is_file() and p.suffix != ".md")
+    assert len(files) == 14
+    for rel in files:
+        assert (bundled / rel).read_bytes() == (shared / rel).read_bytes(), rel
