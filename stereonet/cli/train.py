@@ -1,5 +1,9 @@
 """``python train.py fit --config configs/NAME.yaml [--trainer.max_steps N] [--ckpt_path last]``.
 
+``--data.train SPEC [--data.train_ratio R]`` mixes random crops of a labelled dataset (any spec eval.py
+reads: ``sceneflow:DIR``, ``kitti2015:DIR``, ``folder:DIR`` with ground truth) into the data_gen stream, a
+share R of the items (default 0.5; 1 = that dataset only): training or fine-tuning on one's own data.
+
 A LightningCLI over the LightningModules of :mod:`stereonet.training.module` (chosen by ``model.class_path``
 in the YAML) and :class:`~stereonet.training.data.SyntheticStereoDataModule`. Every run gets the curriculum
 callback and atomic checkpoint writes; seeds are fixed by ``seed_everything`` (default 0).
@@ -9,6 +13,8 @@ from __future__ import annotations
 
 from lightning.pytorch.cli import LightningCLI
 
+from stereonet.checks import StereoInputError
+from stereonet.cli.common import fail
 from stereonet.training.callbacks import AtomicCheckpointIO, CurriculumCallback
 from stereonet.training.data import SyntheticStereoDataModule
 from stereonet.training.module import StereoModule
@@ -26,7 +32,17 @@ class StereoCLI(LightningCLI):
 
 
 def main(args: list[str] | None = None, run: bool = True) -> StereoCLI:
-    """Entry point of ``train.py`` / ``stereonet-train``; ``args``/``run`` as LightningCLI's (for tests)."""
+    """Entry point of ``train.py`` / ``stereonet-train``; ``args``/``run`` as LightningCLI's (for tests).
+
+    Bad data input (``--data.train`` naming an unreadable or unlabelled spec) ends in one line, exit 2.
+    """
+    try:
+        return _cli(args, run)
+    except StereoInputError as e:
+        raise SystemExit(fail("train.py", e)) from None
+
+
+def _cli(args: list[str] | None, run: bool) -> StereoCLI:
     return StereoCLI(
         StereoModule,
         SyntheticStereoDataModule,

@@ -157,13 +157,69 @@ def swap_flip(item: dict) -> dict:
     return out
 
 
+def random_crop(item: dict, height: int, width: int, generator: torch.Generator) -> dict:
+    """A ``height`` x ``width`` window of a labelled pair at a random place (the same columns in both views).
+
+    Left-view pixels whose match falls left of the cropped right view become invalid (their disparity is
+    right, but the right crop no longer shows the match). Items already of that size are returned as is.
+    """
+    h, w = item["left"].shape[-2:]
+    if (h, w) == (height, width):
+        return item
+    if h < height or w < width:
+        raise ValueError(f"random_crop: pair {item.get('name', '?')} is {h}x{w}, smaller than the "
+                         f"{height}x{width} training crop")
+    y0 = int(torch.randint(h - height + 1, (1,), generator=generator))
+    x0 = int(torch.randint(w - width + 1, (1,), generator=generator))
+    out = {}
+    for key, value in item.items():
+        if isinstance(value, torch.Tensor) and value.shape[-2:] == (h, w):
+            out[key] = value[..., y0:y0 + height, x0:x0 + width]
+        elif key not in ("calib",):
+            out[key] = value
+    xs = torch.arange(width, dtype=out["disparity"].dtype)
+    out["valid"] = out["valid"] & (xs - out["disparity"] >= 0)
+    if "disparity_right" in out and "valid_right" in out:  # right view: matches at x + d
+        out["valid_right"] = out["valid_right"] & (xs + out["disparity_right"] <= width - 1)
+    return out
+
+
+def open_training_spec(spec: str, height: int, width: int) -> Dataset:
+    """The labelled dataset ``spec`` (any spec eval.py reads) for training crops of ``height`` x ``width``.
+
+    Raises a one-line :class:`~stereonet.checks.StereoInputError` naming the spec when it cannot be read,
+    has no ground truth, or its first pair is smaller than the crop.
+    """
+    from stereonet.checks import StereoInputError
+    from stereonet.data import load_dataset
+
+    if spec.strip().startswith("synthetic"):
+        raise StereoInputError(f"--data.train {spec!r}: data_gen pairs are the default source already; "
+                               f"expected a dataset spec such as sceneflow:DIR, kitti2015:DIR or folder:DIR")
+    try:
+        dataset = load_dataset(spec)
+    except StereoInputError as e:
+        raise StereoInputError(f"--data.train: {e}") from None
+    first = dataset[0]
+    if not bool(first["valid"].any()):
+        raise StereoInputError(f"--data.train {spec!r}: pair {first.get('name', 0)} has no ground-truth "
+                               f"disparity; training needs a labelled dataset")
+    h, w = first["left"].shape[-2:]
+    if h < height or w < width:
+        raise StereoInputError(f"--data.train {spec!r}: pair {first.get('name', 0)} is {h}x{w}, smaller than "
+                               f"the training crop --data.height {height} x --data.width {width}")
+    return dataset
+
+
 class PooledCurriculumStream(IterableDataset):
     """Endless stream of training pairs rendered on the fly, each reused a few times from a small pool.
 
     Rendering a pair costs about as much as a training step on CPU, so every ``reuse`` items one new pair
     is rendered (at the difficulty in the shared ``difficulty`` value, set by the curriculum) and replaces
     the oldest one in a pool of ``pool_size``; items are drawn at random from the pool and augmented
-    (swap-flip, photometric). Rendering seeds are ``(seed + 7919 * start, rank, worker, counter)``: a pure
+    (swap-flip, photometric). With ``extra`` (a labelled dataset) a share ``extra_ratio`` of the items are
+    random crops of its pairs instead, augmented the same way (the curriculum sets only the rendered pairs'
+    difficulty). Rendering seeds are ``(seed + 7919 * start, rank, worker, counter)``: a pure
     function of the start offset (the global step when training (re)starts), the DDP rank and the
     DataLoader worker, so ranks and workers never repeat each other's pairs (pair index
     ``(counter * workers + worker) * world_size + rank``) and a resumed run does not replay the first
@@ -172,8 +228,10 @@ class PooledCurriculumStream(IterableDataset):
 
     def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
                  augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None,
-                 rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0) -> None:
+                 rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0,
+                 extra: Dataset | None = None, extra_ratio: float = 0.0) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
+        self.extra, self.extra_ratio = extra, float(extra_ratio) if extra is not None else 0.0
         self.vertical_jitter = float(vertical_jitter)
         self.supersample, self.disparity_range = supersample, disparity_range
         self.pool_size, self.reuse, self.augment = max(1, pool_size), max(1, reuse), augment
@@ -190,7 +248,7 @@ class PooledCurriculumStream(IterableDataset):
         pool: list[dict] = []
         counter = 0
         while True:
-            if len(pool) < self.pool_size or counter % self.reuse == 0:
+            if self.extra_ratio < 1 and (len(pool) < self.pool_size or counter % self.reuse == 0):
                 index = (counter * nworkers + wid) * self.world_size + self.rank
                 level = int(self.difficulty.value)
                 max_disp = sample_max_disp(self.source, level, self.width, self.disparity_range, g)
@@ -199,7 +257,13 @@ class PooledCurriculumStream(IterableDataset):
                 pool.append(ds[index])
                 pool = pool[-self.pool_size:]
             counter += 1
-            item = pool[int(torch.randint(len(pool), (1,), generator=g))]
+            if self.extra_ratio > 0 and float(torch.rand(1, generator=g)) < self.extra_ratio:
+                index = int(torch.randint(len(self.extra), (1,), generator=g))
+                item = random_crop(self.extra[index], self.height, self.width, g)
+                if item["left"].shape[0] == 1:  # greyscale datasets: the networks take RGB like data_gen's
+                    item = {**item, "left": item["left"].expand(3, -1, -1), "right": item["right"].expand(3, -1, -1)}
+            else:
+                item = pool[int(torch.randint(len(pool), (1,), generator=g))]
             if self.augment:
                 if float(torch.rand(1, generator=g)) < 0.5:
                     item = swap_flip(item)
@@ -257,6 +321,12 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             and this value (see :func:`sample_max_disp`); validation pairs keep their difficulty's.
         vertical_jitter: with ``augment``, the right view of each training item is shifted by up to this
             many rows (:func:`vertical_jitter`; 0 = off, the default).
+        train: a labelled dataset spec that eval.py reads (``sceneflow:DIR``, ``kitti2015:DIR``,
+            ``middlebury2014:DIR``, ``folder:DIR`` with ground truth, ...): its pairs, randomly cropped to
+            ``height`` x ``width``, are mixed into the training stream (``--data.train SPEC`` in train.py),
+            with the same augmentation; validation stays on data_gen. The way to adapt a model to one's own
+            rig; the shipped weights never use it.
+        train_ratio: share of training items drawn from ``train`` (1 = only ``train``; the rest are data_gen).
         val_vertical_jitter: the right view of validation pair ``i`` is shifted by a fixed offset drawn
             uniformly in [-v, v] rows (seeded by ``val_seed``; the same for every run), so that selection
             sees the small rectification errors every real rig has (0 = off, the default).
@@ -267,9 +337,15 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  val_width: int | None = None, seed: int = 0, val_seed: int = 900_000,
                  curriculum_fraction: float = 0.5, min_difficulty: int = 0, num_workers: int = 0,
                  augment: bool = True, supersample: int = 2, disparity_range: int | None = None,
-                 vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0) -> None:
+                 vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0, train: str | None = None,
+                 train_ratio: float = 0.5) -> None:
         super().__init__()
         self.save_hyperparameters()
+        from stereonet.checks import StereoInputError
+
+        if not 0.0 < train_ratio <= 1.0:
+            raise StereoInputError(f"--data.train_ratio: expected a share in (0, 1], got {train_ratio}")
+        self.train_extra = open_training_spec(train, height, width) if train else None
         if source not in ("data_gen", "random-shift"):
             raise ValueError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
         ctx = multiprocessing.get_context("fork") if hasattr(os, "fork") else multiprocessing.get_context()
@@ -312,7 +388,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         stream = PooledCurriculumStream(hp.source, hp.seed, hp.height, hp.width, hp.pool_size, hp.reuse,
                                         hp.augment, self._difficulty, self._start, hp.supersample,
                                         hp.disparity_range, rank=rank, world_size=world,
-                                        vertical_jitter=hp.vertical_jitter)
+                                        vertical_jitter=hp.vertical_jitter, extra=self.train_extra,
+                                        extra_ratio=hp.train_ratio)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 
