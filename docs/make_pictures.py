@@ -35,10 +35,10 @@ def tour_commands(readme: Path = REPO / "README.md") -> list[str]:
 
 def run_tour(workdir: Path, commands: list[str]) -> None:
     """Run the commands with ``workdir`` as the current folder (``python`` = this interpreter, globs expanded,
-    the README's ``../shared/data`` pointing at the shared data beside the repository)."""
-    shared = REPO.parent / "shared"
-    if not (workdir.parent / "shared").exists() and shared.is_dir():
-        os.symlink(shared, workdir.parent / "shared")
+    the README's ``stereonet/data/bundled`` paths, relative to the repository root where a user runs them,
+    pointing at the repository's)."""
+    if not (workdir / "stereonet").exists():
+        os.symlink(REPO / "stereonet", workdir / "stereonet")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     for cmd in commands:
         argv = []

@@ -22,11 +22,12 @@ def _pictures_module():
     return mod
 
 
-def _workdir(tmp_path: Path, shared_data: Path) -> Path:
-    """tmp/work with tmp/shared -> the real shared folder, so the README's ../shared/data paths resolve."""
+def _workdir(tmp_path: Path) -> Path:
+    """tmp/work with work/stereonet -> the repository's, so the README's paths (relative to the repository
+    root: the bundled real pairs) resolve; nothing beside the checkout is needed."""
     work = tmp_path / "work"
     work.mkdir()
-    os.symlink(shared_data.parent, tmp_path / "shared")
+    os.symlink(REPO / "stereonet", work / "stereonet")
     return work
 
 
@@ -37,7 +38,7 @@ def test_readme_opening_is_the_two_commands():
     assert lines == ["make demo", "make test"]
 
 
-def test_api_block_runs(shared_data, monkeypatch, capsys):
+def test_api_block_runs(monkeypatch, capsys):
     text = (REPO / "README.md").read_text()
     start = text.index("```python", text.index("<!-- api -->")) + len("```python")
     code = text[start:text.index("```", start)]
@@ -49,11 +50,11 @@ def test_api_block_runs(shared_data, monkeypatch, capsys):
     assert 0 < bad2 < 40  # SGBM on cones: well below chance
 
 
-def test_tour_first_command_cones(shared_data, tmp_path, monkeypatch):
+def test_tour_first_command_cones(tmp_path, monkeypatch):
     commands = _pictures_module().tour_commands()
     argv = shlex.split(commands[0])
     assert argv[:2] == ["python", "infer.py"]
-    work = _workdir(tmp_path, shared_data)
+    work = _workdir(tmp_path)
     monkeypatch.chdir(work)
     assert infer.main(argv[2:]) == 0
     info = json.loads((work / "out" / "cones" / "info.json").read_text())
@@ -62,9 +63,9 @@ def test_tour_first_command_cones(shared_data, tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_whole_tour(shared_data, tmp_path):
+def test_whole_tour(tmp_path):
     mod = _pictures_module()
-    work = _workdir(tmp_path, shared_data)
+    work = _workdir(tmp_path)
     mod.run_tour(work, mod.tour_commands())
     rig = work / "out" / "rig"
     assert {"rectified_left.png", "epipolar_check.png", "depth.pfm", "cloud.ply"} <= {p.name for p in rig.iterdir()}
