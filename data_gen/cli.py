@@ -112,7 +112,12 @@ def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int 
     check_render_args(seed, 0, difficulty, height, width, supersample, render_options.get("max_disp"),
                       render_options.get("baseline"), render_options.get("num_objects"))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"out: {out} is an existing file; expected a folder (new or existing)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError, PermissionError) as e:
+        raise ValueError(f"out: cannot create the folder {out} ({e.strerror or e})") from None
     folders = []
     for index in tqdm(range(count), desc="data_gen", unit="pair", disable=not progress):
         name = pair_name(seed, index, difficulty, rectified)
@@ -196,8 +201,16 @@ def _dispnet_step_seconds(height: int, width: int, batch: int = 1, steps: int = 
     return {"dispnet_step_cpu_seconds": (time.process_time() - t0) / steps, "dispnet_batch": batch}
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse whose errors are one line (``prog: error: ...``), exit 2."""
+
+    def error(self, message: str):
+        sys.stderr.write(f"{self.prog}: error: {' '.join(message.split())}\n")
+        raise SystemExit(2)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m data_gen", description=__doc__.split("\n")[0],
+    p = _OneLineParser(prog="python -m data_gen", description=__doc__.split("\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", help="output folder (one sub-folder per pair)")
     p.add_argument("--count", type=int, default=10, help="number of pairs (indices 0..count-1)")

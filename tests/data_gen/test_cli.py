@@ -92,3 +92,15 @@ def test_bench_reports_pairs_per_second():
     r = data_gen.cli.bench(count=2, height=64, width=128)
     assert r["pairs_per_cpu_second"] > 0 and r["mean_objects"] >= 10
     torch.set_num_threads(2)
+
+
+@pytest.mark.parametrize("where", ["file", "under-file"])
+def test_cli_out_that_is_a_file_is_one_line(tmp_path, capsys, where):
+    existing = tmp_path / "taken.txt"
+    existing.write_text("keep me")
+    out = existing if where == "file" else existing / "sub"
+    with pytest.raises(SystemExit) as exc:
+        main(["--out", str(out), "--count", "1", "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "out" in err[0] and str(existing) in err[0], err
+    assert existing.read_text() == "keep me" and sorted(p.name for p in tmp_path.iterdir()) == ["taken.txt"]
