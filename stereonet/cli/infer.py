@@ -231,6 +231,21 @@ def content_valid(disp: torch.Tensor, left_content: torch.Tensor, right_content:
     return (left_content & hit)[None, None]
 
 
+def geometry_reversed(calib) -> bool:
+    from stereonet.geometry import is_reversed_rig
+
+    return is_reversed_rig(calib)
+
+
+def mirror_output(out):
+    """A matcher's output on a mirrored pair, flipped back (every per-pixel tensor, along x)."""
+    import dataclasses
+
+    changes = {f.name: getattr(out, f.name).flip(-1) for f in dataclasses.fields(out)
+               if isinstance(getattr(out, f.name), torch.Tensor) and getattr(out, f.name).dim() == 4}
+    return dataclasses.replace(out, **changes)
+
+
 def write_rectified_calibration(path: Path, rect, unit: str | None) -> None:
     """The rectified rig as OpenCV FileStorage YAML: K (shared), baseline, R1, R2, P1, P2, Q, size."""
     import cv2
@@ -311,6 +326,28 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
                 info["warnings"].append(
                     f"the pair looks unrectified: SIFT matches are {row_error:.1f} px off-row (median); "
                     "pass --calib FILE or --uncalibrated to rectify it first")
+    # a rig whose second camera sits on the left: matches lie at x + d, so the pair is matched mirrored
+    # (both images flipped left-right: the first stays the reference, the outputs stay upright)
+    mirror = bool(rect.reversed) if rect is not None else (
+        calib is not None and calib.is_rectified() and geometry_reversed(calib))
+    if mirror:
+        info["reversed_rig"] = True
+        if rect is None:  # a rectified rig with t = (+B, 0, 0): depth of the mirrored disparity x2 - x1
+            import dataclasses
+
+            depth_calib = dataclasses.replace(calib, t=-calib.t, doffs=-float(calib.doffs))
+        info["warnings"].append("reversed rig: the second camera sits to the left of the first (the files may "
+                                "be given in the other order); matched mirrored, the first image stays the "
+                                "reference, disparity = x_second - x_first > 0")
+        if len(pl):
+            pl, pr = pl.copy(), pr.copy()
+            pl[:, 0], pr[:, 0] = left.shape[-1] - 1 - pl[:, 0], left.shape[-1] - 1 - pr[:, 0]
+    else:
+        info["reversed_rig"] = False
+    colours = left
+    if mirror:
+        left, right = left.flip(-1), right.flip(-1)
+        left_content, right_content = left_content.flip(-1), right_content.flip(-1)
     width = left.shape[-1]
     if max_disp is None:
         if info["rectified"] is None and depth_calib is not None and depth_calib.ndisp:
@@ -356,6 +393,8 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         out = apply_fill(out)
         if padded or min_disp:
             out.valid = out.valid & content
+    if mirror:
+        out = mirror_output(out)
     disparity = out.disparity + min_disp if min_disp else out.disparity
     disp, valid = disparity[0, 0].float().cpu(), out.valid[0, 0].cpu()
     info["density"] = 100.0 * float(valid.float().mean())
@@ -388,7 +427,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
             info["units"]["depth_mm.png"] = "uint16 millimetres, 0 = no depth (KITTI/RealSense convention)"
         viz.save_png(out_dir / "depth.png", viz.colorize_depth(depth[0, 0].numpy(), st.unit or "?",
                                                                has_depth.numpy()))
-        points, colors = disparity_to_points(disparity, out.valid, depth_calib, left)
+        points, colors = disparity_to_points(disparity, out.valid, depth_calib, colours)
         info["cloud_frame"] = "rectified left camera"
         if rect is not None and rect.R1 is not None and st.cloud_frame == "original":
             points = points @ rect.R1.to(points.dtype).to(points.device)  # X_orig = R1^T X_rect (rows)

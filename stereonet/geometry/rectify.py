@@ -31,6 +31,7 @@ __all__ = [
     "rectify_from_file",
     "rectify_points",
     "rectify_uncalibrated",
+    "is_reversed_rig",
     "rectifying_rotation",
     "stereo_rectify",
     "stereo_rectify_uncalibrated",
@@ -64,6 +65,12 @@ class Rectification:
             (uncalibrated), a hint for ``max_disp``.
         notes: warnings about the result, e.g. that one homography explains nearly all matches (dominant
             plane, pure rotation: F, hence the rectification, is weakly determined away from that plane).
+        reversed: the "right" camera sits to the left of the "left" one (its centre at negative x in the left
+            camera frame). The rectified frame is then kept upright (its x axis points against the baseline,
+            instead of turning both images by 180 degrees as a baseline-aligned frame would), so the second
+            camera lies at ``-B`` along x: matches in the second image are at ``x + d`` (``P2[0, 3] = +f B``,
+            OpenCV's signed disparity ``x_first - x_second`` is negative); ``calib`` keeps ``B > 0`` for the
+            mirrored, positive disparity ``x_second - x_first`` (see :func:`is_reversed_rig`).
     """
 
     left: torch.Tensor | None
@@ -83,6 +90,13 @@ class Rectification:
     inliers: torch.Tensor | None = None
     disparity_range: tuple[float, float] | None = None
     notes: list[str] = field(default_factory=list)
+    reversed: bool = False
+
+
+def is_reversed_rig(calib: Calibration) -> bool:
+    """Whether the second camera's centre ``-R^T t`` lies at negative x in the first camera's frame (a rig
+    whose "right" camera sits on the left, e.g. the two files given in the other order)."""
+    return float(-(calib.R.T @ calib.t)[0]) < 0
 
 
 def apply_homography(H: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -314,7 +328,8 @@ def stereo_rectify(
     if method != "kornia":
         raise ValueError(f"method: expected 'kornia' or 'opencv', got {method!r}")
     K1, K2, R = calib.K1, calib.K2, calib.R
-    R1 = rectifying_rotation(R, calib.t)
+    reversed_rig = is_reversed_rig(calib)
+    R1 = rectifying_rotation(R, -calib.t if reversed_rig else calib.t)  # upright: x against the baseline
     R2 = R1 @ R.T
     f0 = float(torch.stack([K1[0, 0], K1[1, 1], K2[0, 0], K2[1, 1]]).mean())
     K0 = torch.diag(torch.tensor([f0, f0, 1.0], dtype=torch.float64))
@@ -334,7 +349,10 @@ def stereo_rectify(
     H1 = K_new @ R1 @ torch.linalg.inv(K1)
     H2 = K_new @ R2 @ torch.linalg.inv(K2)
     P1, P2, Q, rect_calib = _rectified_outputs(K_new, calib.baseline, out_w, out_h)
-    return Rectification(None, None, H1, H2, P1, P2, Q, rect_calib, None, R1=R1, R2=R2, original=calib)
+    if reversed_rig:  # the second camera at -B: OpenCV's P2 and Q for the signed (negative) disparity
+        P2, Q = _rectified_outputs(K_new, -calib.baseline, out_w, out_h)[1:3]
+    return Rectification(None, None, H1, H2, P1, P2, Q, rect_calib, None, R1=R1, R2=R2, original=calib,
+                         reversed=reversed_rig)
 
 
 def _stereo_rectify_opencv(calib: Calibration, alpha: float, out_h: int, out_w: int) -> Rectification:

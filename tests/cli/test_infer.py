@@ -371,3 +371,89 @@ def test_unrectified_rig_padding_alpha_and_rectified_calibration(tmp_path, capsy
     orig_pts, _ = read_ply(tmp_path / "orig" / "cloud.ply")
     np.testing.assert_allclose(orig_pts, rect_pts @ R1, rtol=1e-4, atol=1e-4)  # X_orig = R1^T X_rect
     assert json.loads((tmp_path / "orig" / "info.json").read_text())["cloud_frame"] == "original left camera"
+
+
+def _write_yaml_calib(path: Path, K1, K2, R, T, size, d1=None, d2=None) -> Path:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_YAML)
+    for name, value in (("K1", K1), ("K2", K2), ("R", R), ("T", np.asarray(T, dtype=np.float64).reshape(3, 1))):
+        fs.write(name, np.asarray(value, dtype=np.float64))
+    for name, value in (("D1", d1), ("D2", d2)):
+        if value is not None:
+            fs.write(name, np.asarray(value, dtype=np.float64))
+    fs.write("image_width", int(size[0]))
+    fs.write("image_height", int(size[1]))
+    fs.release()
+    return path
+
+
+def test_reversed_rectified_rig_is_matched_mirrored(tmp_path, capsys):
+    """A rectified pair given right view first (its calibration puts the second camera on the left):
+    detected, said in info.json, and matched so that the first image stays the reference (its own GT)."""
+    from stereonet.io import read_disparity
+
+    gen = tmp_path / "gen"
+    subprocess.run([sys.executable, "-m", "data_gen", "--out", str(gen), "--count", "1", "--seed", "3",
+                    "--height", "128", "--width", "256"], check=True, capture_output=True)
+    scene = next(p for p in gen.iterdir() if p.is_dir())
+    K = np.array([[200.0, 0, 128], [0, 200.0, 64], [0, 0, 1]])
+    calib = _write_yaml_calib(tmp_path / "reversed.yaml", K, K, np.eye(3), [0.1, 0, 0], (256, 128))
+    code, err = run_main(capsys, scene / "im1.png", scene / "im0.png", "--calib", calib, "--method", "sgm",
+                         "--max-disp", "64", "-o", tmp_path / "rev", "--unit", "m")
+    assert code == 0, err
+    info = json.loads((tmp_path / "rev" / "info.json").read_text())
+    assert info["reversed_rig"] is True and any("reversed rig" in w for w in info["warnings"])
+    assert "reversed rig" in err
+    disp, valid = read_disparity(tmp_path / "rev" / "disparity.pfm")
+    gt, gt_valid = read_disparity(scene / "disp1GT.pfm")  # the first image's (= right view's) ground truth
+    both = valid & gt_valid
+    assert both.mean() > 0.5
+    assert np.mean(np.abs(disp[both] - gt[both]) > 2) < 0.15  # bad-2 of a correct match; garbage is > 0.5
+    depth, has = read_disparity(tmp_path / "rev" / "depth.pfm")
+    np.testing.assert_allclose(depth[has & both], 200.0 * 0.1 / disp[has & both], rtol=1e-4)
+    normal = tmp_path / "normal"
+    code, err = run_main(capsys, scene / "im0.png", scene / "im1.png", "--method", "sgm", "--max-disp", "64",
+                         "-o", normal)
+    assert code == 0 and json.loads((normal / "info.json").read_text())["reversed_rig"] is False
+
+
+def test_reversed_unrectified_rig_stays_upright(tmp_path, capsys):
+    """data_gen's unrectified rig given in the other order (the calibration inverted accordingly): the
+    rectified frame stays upright (no 180-degree turn), and the cloud agrees with the forward run's."""
+    from stereonet.calibration import read_calibration
+    from stereonet.geometry import is_reversed_rig, stereo_rectify
+    from stereonet.io import read_ply
+
+    gen = tmp_path / "gen"
+    subprocess.run([sys.executable, "-m", "data_gen", "--out", str(gen), "--count", "1", "--seed", "3",
+                    "--unrectified", "--height", "128", "--width", "256"], check=True, capture_output=True)
+    scene = next(p for p in gen.iterdir() if p.is_dir())
+    c = read_calibration(scene / "calib.yaml")
+    R, t = c.R.numpy(), c.t.numpy()
+    inverse = _write_yaml_calib(tmp_path / "inverse.yaml", c.K2.numpy(), c.K1.numpy(), R.T, -R.T @ t,
+                                c.image_size, None if c.dist2 is None else c.dist2.numpy(),
+                                None if c.dist1 is None else c.dist1.numpy())
+    rc = read_calibration(inverse)
+    assert is_reversed_rig(rc) and not is_reversed_rig(c)
+    rect = stereo_rectify(rc)
+    assert rect.reversed and float(rect.R1[0, 0]) > 0.9 and float(rect.R1[1, 1]) > 0.9  # upright, not turned
+    assert float(rect.P2[0, 3]) > 0 and rect.calib.baseline > 0
+    common = ["--method", "sgm", "--max-disp", "64", "--unit", "m", "--cloud-frame", "original"]
+    code, err = run_main(capsys, scene / "im0.png", scene / "im1.png", "--calib", scene / "calib.yaml", *common,
+                         "-o", tmp_path / "fwd")
+    assert code == 0, err
+    code, err = run_main(capsys, scene / "im1.png", scene / "im0.png", "--calib", inverse, *common,
+                         "-o", tmp_path / "rev")
+    assert code == 0, err
+    info = json.loads((tmp_path / "rev" / "info.json").read_text())
+    assert info["reversed_rig"] is True and info["epipolar_median_row_error_px"] < 1.0
+    fwd, _ = read_ply(tmp_path / "fwd" / "cloud.ply")  # first camera = data_gen's left camera
+    rev, _ = read_ply(tmp_path / "rev" / "cloud.ply")  # first camera = data_gen's right camera
+    fwd_in_right = fwd @ R.T + t  # X_r = R X_l + t
+    assert len(rev) > 0.5 * len(fwd)
+    from scipy.spatial import cKDTree
+
+    depth = float(np.median(fwd[:, 2]))
+    near = cKDTree(fwd_in_right).query(rev[::10])[0]
+    assert np.median(near) < 0.02 * depth  # the same surfaces (measured: 0.8 %)
+    turned = cKDTree(fwd_in_right * [-1, -1, 1]).query(rev[::10])[0]  # what a 180-degree turn would give
+    assert np.median(turned) > 3 * np.median(near)
