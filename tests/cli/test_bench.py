@@ -63,3 +63,18 @@ def test_bench_merge_adds_methods(tmp_path, monkeypatch):
     out.unlink()
     assert bench.main(["--report-only", *common]) == 0  # rewritten from pairs.json, nothing re-run
     assert "| `opencv-bm` |" in out.read_text()
+
+
+def test_pairs_line_counts_each_datasets_pairs_once():
+    from stereonet.bench import dataset_pairs, pairs_line
+    from stereonet.cli.eval import Evaluation, PairResult
+
+    def r(method, dataset, pair):
+        return PairResult(method, dataset, pair, {"bad2": 1.0}, {"bad2": 1.0}, 0.1, 1.0)
+
+    ev = Evaluation([r(m, d, p) for m in ("sgm", "bm-sad") for d, p in
+                     (("middlebury2001", "tsukuba"), ("middlebury2001", "venus"), ("kitti2012", "000000_10"))])
+    assert dataset_pairs(ev, ["middlebury2001", "kitti2012"]) == {"middlebury2001": ["tsukuba", "venus"],
+                                                                  "kitti2012": ["000000_10"]}
+    line = pairs_line(ev, ["middlebury2001", "kitti2012"])
+    assert "**3 pairs**" in line and "middlebury2001 2 (tsukuba, venus)" in line and "kitti2012 1" in line
