@@ -85,7 +85,7 @@ DATASET_KINDS = ("synthetic", *_READERS, "real")
 _KIND_SYNTAX = {"synthetic": "synthetic[:N]", "real": "real",
                 "sceneflow": f"sceneflow[-{'|-'.join(SCENEFLOW_PASSES[::-1])}][-{'|-'.join(SCENEFLOW_SPLITS)}]:DIR"}
 # Folders of ../shared/data that ``real`` reads, each with the reader of the same name.
-REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2014", "kitti2012", "kitti2015")
+REAL_KINDS = ("middlebury2001", "middlebury2003", "middlebury2006", "middlebury2014", "eth3d", "kitti2012", "kitti2015")
 
 
 def shared_data_dir() -> Path | None:

@@ -370,3 +370,14 @@ def test_bundled_pairs_are_the_shared_files_unchanged():
     assert len(files) == 14
     for rel in files:
         assert (bundled / rel).read_bytes() == (shared / rel).read_bytes(), rel
+
+
+def test_real_reads_every_real_layout_in_the_shared_folder(tmp_path, monkeypatch):
+    """A shared data folder with Middlebury 2005/2006 and ETH3D sub-folders: ``real`` reads them too (the
+    larger real sets one brings), and never mixes in the bundled pairs."""
+    _write_eth3d(tmp_path / "eth3d" / "delivery_area_1l", 0)
+    _write_mb2006(tmp_path / "middlebury2006" / "ThirdSize" / "Aloe", 1, 3.0)
+    monkeypatch.setenv("STEREONET_SHARED_DATA", str(tmp_path))
+    ds = load_dataset("real")
+    assert sorted(ds.names) == ["eth3d/delivery_area_1l", "middlebury2006/ThirdSize/Aloe"] and ds.source == "shared"
+    assert [s.split(":")[0] for s in ev.expand_data_specs("real")] == ["middlebury2006", "eth3d"]
