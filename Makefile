@@ -13,6 +13,8 @@ $(STAMP): pyproject.toml
 	# torch first, pinned: its CPU wheel is on disk; an unpinned torch pulls a multi-GB CUDA build
 	$(BIN)/python -m pip install --quiet "$(TORCH_PIN)"
 	$(BIN)/python -m pip install --quiet -e ".[dev]" "$(TORCH_PIN)"
+	# compile the numba kernels now (cached on disk), so the first infer.py/eval.py call does not wait
+	$(BIN)/python -m stereonet.warmup
 	touch $(STAMP)
 
 setup: $(STAMP)

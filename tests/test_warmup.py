@@ -1,0 +1,21 @@
+"""``python -m stereonet.warmup`` (run by ``make setup``) runs every classical matcher's compiled path once."""
+
+from __future__ import annotations
+
+from stereonet import matchers
+from stereonet.warmup import main, warm_up
+
+
+def test_warm_up_runs_every_classical_matcher_and_compiles_the_sgm_kernel():
+    from stereonet.optimize import _sgm_numba
+
+    steps = dict(warm_up(verbose=False))
+    classical = [n for n in matchers.available() if matchers.spec(n).kind == "classical"]
+    assert set(classical) <= set(steps) and {"fill", "data_gen"} <= set(steps)
+    assert _sgm_numba._sweep.signatures  # compiled (or loaded from the on-disk cache) in this process
+
+
+def test_main_quiet_prints_nothing(capsys):
+    assert main(["--quiet"]) == 0
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
