@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import torch
 
-from stereonet.checks import check_stereo_inputs
+from stereonet.checks import StereoInputError, check_stereo_inputs
 from stereonet.matchers import register
 from stereonet.types import StereoOutput
 
@@ -70,7 +70,7 @@ def opencv_sgbm(left: torch.Tensor, right: torch.Tensor, max_disp: int, block_si
     modes = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
              "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY}
     if mode not in modes:
-        raise ValueError(f"mode: expected one of {sorted(modes)}, got {mode!r}")
+        raise StereoInputError(f"mode: expected one of {sorted(modes)}, got {mode!r}")
 
     def make():
         return cv2.StereoSGBM_create(

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stereonet.checks import StereoInputError
 from stereonet.cli.common import USER_ERRORS, OneLineParser, fail
 from stereonet.cli.eval import (
     Evaluation,
@@ -342,12 +343,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         skipped: list[str] = []
         methods = parse_methods(args.methods, skipped)
         if args.synthetic < 0:
-            raise ValueError(f"--synthetic: expected a count >= 0, got {args.synthetic}")
+            raise StereoInputError(f"--synthetic: expected a count >= 0, got {args.synthetic}")
         real = [] if args.no_real else expand_data_specs("real")
         synthetic = f"synthetic:{args.synthetic}" if args.synthetic else None
         specs = real + ([synthetic] if synthetic else [])
         if not specs:
-            raise ValueError("nothing to run: no real data and --synthetic 0")
+            raise StereoInputError("nothing to run: no real data and --synthetic 0")
         from stereonet.cli.eval import dataset_label
 
         groups = {}

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 import torch
 
+from stereonet.checks import StereoInputError
 from stereonet.io.atomic import atomic_path
 from stereonet.io.errors import existing_file, fail
 from stereonet.types import Calibration
@@ -302,13 +303,13 @@ def write_opencv_calibration(path: str | os.PathLike, calib: Calibration,
     if not isinstance(calib, Calibration):
         raise TypeError(f"calib: expected a Calibration, got {type(calib).__name__}")
     if Path(path).suffix.lower() not in _OPENCV_EXTENSIONS:
-        raise ValueError(f"path: expected one of {', '.join(_OPENCV_EXTENSIONS)}, got {str(path)!r}")
+        raise StereoInputError(f"path: expected one of {', '.join(_OPENCV_EXTENSIONS)}, got {str(path)!r}")
     reserved = {k for aliases in _KEY_ALIASES.values() for k in aliases} | {
         "image_width", "image_height", "size", "imageSize", "image_size", "doffs", "ndisp"}
     extra = dict(extra or {})
     for key, value in extra.items():
         if key in reserved:
-            raise ValueError(f"extra: {key!r} is a calibration key, expected another name")
+            raise StereoInputError(f"extra: {key!r} is a calibration key, expected another name")
         if not isinstance(value, (str, int, float, np.ndarray)) or isinstance(value, bool):
             raise TypeError(f"extra[{key!r}]: expected str, int, float or numpy array, got {type(value).__name__}")
 

@@ -46,7 +46,7 @@ def register(name: str, *, kind: str, description: str, needs_weights: bool = Fa
 
     def deco(fn: MatcherFn) -> MatcherFn:
         if name in _REGISTRY and _REGISTRY[name].fn is not fn:
-            raise ValueError(f"name: matcher {name!r} is already registered")
+            raise StereoInputError(f"name: matcher {name!r} is already registered")
         _REGISTRY[name] = MatcherSpec(name, fn, kind, description, needs_weights)
         return fn
 

@@ -78,7 +78,7 @@ class Calibration:
     ndisp: int | None = None
 
     def __post_init__(self) -> None:
-        from stereonet.checks import check_shape
+        from stereonet.checks import StereoInputError, check_shape
 
         self.K1 = torch.as_tensor(self.K1, dtype=torch.float64)
         self.K2 = torch.as_tensor(self.K2, dtype=torch.float64)
@@ -91,10 +91,10 @@ class Calibration:
         for name in ("K1", "K2", "R", "t"):
             v = getattr(self, name)
             if not torch.isfinite(v).all():
-                raise ValueError(f"{name}: expected finite values, got NaN or inf")
+                raise StereoInputError(f"{name}: expected finite values, got NaN or inf")
         for name in ("K1", "K2"):
             if abs(float(torch.linalg.det(getattr(self, name)))) < 1e-12:
-                raise ValueError(f"{name}: expected an invertible intrinsic matrix, got a singular one")
+                raise StereoInputError(f"{name}: expected an invertible intrinsic matrix, got a singular one")
         for name in ("dist1", "dist2"):
             v = getattr(self, name)
             if v is not None:
@@ -102,7 +102,7 @@ class Calibration:
         if self.image_size is not None:
             w, h = (int(x) for x in self.image_size)
             if w <= 0 or h <= 0:
-                raise ValueError(f"image_size: expected positive (width, height), got {self.image_size}")
+                raise StereoInputError(f"image_size: expected positive (width, height), got {self.image_size}")
             self.image_size = (w, h)
 
     @property

@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereonet.checks import StereoInputError
 from stereonet.io.atomic import atomic_path
 from stereonet.io.image import to_uint8_rgb, write_image
 
@@ -34,7 +35,7 @@ def _as_hw(x, name: str, dtype=np.float64) -> np.ndarray:
     while a.ndim > 2 and a.shape[0] == 1:
         a = a[0]
     if a.ndim != 2 or a.size == 0:
-        raise ValueError(f"{name}: expected shape (H, W) (or with leading 1s), got {np.shape(x)}")
+        raise StereoInputError(f"{name}: expected shape (H, W) (or with leading 1s), got {np.shape(x)}")
     if dtype is bool:
         if a.dtype != np.bool_:
             raise TypeError(f"{name}: expected a bool mask, got {a.dtype}")
@@ -47,7 +48,7 @@ def _mask(valid, shape, name: str) -> np.ndarray:
         return np.ones(shape, bool)
     v = _as_hw(valid, name, bool)
     if v.shape != shape:
-        raise ValueError(f"{name}: expected shape {shape}, got {v.shape}")
+        raise StereoInputError(f"{name}: expected shape {shape}, got {v.shape}")
     return v
 
 
@@ -63,7 +64,7 @@ def colorize_disparity(disp, max_disp: float, valid=None, colormap: int = cv2.CO
         uint8 RGB :math:`(H, W, 3)`.
     """
     if not (isinstance(max_disp, int | float) and max_disp > 0 and math.isfinite(max_disp)):
-        raise ValueError(f"max_disp: expected a positive number, got {max_disp!r}")
+        raise StereoInputError(f"max_disp: expected a positive number, got {max_disp!r}")
     d = _as_hw(disp, "disp")
     v = _mask(valid, d.shape, "valid") & np.isfinite(d)
     level = np.rint(np.clip(np.where(v, d, 0.0) / float(max_disp), 0.0, 1.0) * 255.0).astype(np.uint8)
@@ -130,7 +131,7 @@ def error_map(pred, gt, valid, pred_valid=None) -> np.ndarray:
     """
     p, g = _as_hw(pred, "pred"), _as_hw(gt, "gt")
     if p.shape != g.shape:
-        raise ValueError(f"pred: expected the shape of gt {g.shape}, got {p.shape}")
+        raise StereoInputError(f"pred: expected the shape of gt {g.shape}, got {p.shape}")
     v = _mask(valid, g.shape, "valid") & np.isfinite(g)
     pv = _mask(pred_valid, g.shape, "pred_valid") & np.isfinite(p)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -161,10 +162,10 @@ def panel(images: Sequence, titles: Sequence[str] | None = None, gap: int = 4) -
         uint8 RGB :math:`(H_{title} + H, \\sum W + gaps, 3)`.
     """
     if not images:
-        raise ValueError("images: expected at least one image, got an empty list")
+        raise StereoInputError("images: expected at least one image, got an empty list")
     titles = [""] * len(images) if titles is None else list(titles)
     if len(titles) != len(images):
-        raise ValueError(f"titles: expected {len(images)} titles (one per image), got {len(titles)}")
+        raise StereoInputError(f"titles: expected {len(images)} titles (one per image), got {len(titles)}")
     tiles = [_to_rgb(im, f"images[{i}]") for i, im in enumerate(images)]
     h = tiles[0].shape[0]
     tiles = [t if t.shape[0] == h else cv2.resize(t, (max(1, round(t.shape[1] * h / t.shape[0])), h),
@@ -192,7 +193,7 @@ def panel(images: Sequence, titles: Sequence[str] | None = None, gap: int = 4) -
 def save_png(path: str | os.PathLike, img) -> None:
     """Write an RGB uint8 :math:`(H, W, 3)` / grey image (or a float tensor in [0, 1]) as PNG, atomically."""
     if Path(path).suffix.lower() != ".png":
-        raise ValueError(f"path: expected a .png file, got {str(path)!r}")
+        raise StereoInputError(f"path: expected a .png file, got {str(path)!r}")
     write_image(path, img)
 
 
@@ -216,7 +217,7 @@ def plot_bars(path: str | os.PathLike, categories: Sequence[str], series: Mappin
 
     for name, vals in series.items():
         if len(vals) != len(categories):
-            raise ValueError(f"series[{name!r}]: expected {len(categories)} values (one per category), got {len(vals)}")
+            raise StereoInputError(f"series[{name!r}]: expected {len(categories)} values (one per category), got {len(vals)}")
     n = max(1, len(series))
     fig = Figure(figsize=(max(5.0, 0.6 * len(categories) * n + 2.0), 4.0))
     ax = fig.add_subplot(1, 1, 1)
@@ -247,7 +248,7 @@ def plot_curves(path: str | os.PathLike, curves: Mapping[str, tuple[Sequence[flo
     ax = fig.add_subplot(1, 1, 1)
     for name, (xs, ys) in curves.items():
         if len(xs) != len(ys):
-            raise ValueError(f"curves[{name!r}]: expected as many x as y values, got {len(xs)} and {len(ys)}")
+            raise StereoInputError(f"curves[{name!r}]: expected as many x as y values, got {len(xs)} and {len(ys)}")
         ax.plot(np.asarray(xs, float), np.asarray(ys, float), marker="o" if len(xs) < 30 else None, label=name)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)

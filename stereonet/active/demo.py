@@ -42,6 +42,7 @@ from stereonet.active.structured_light import (
     render_active_pair,
 )
 from stereonet.active.triangulate import depth_to_points
+from stereonet.checks import StereoInputError
 from stereonet.io import atomic_write_text, write_ply
 
 log = logging.getLogger(__name__)
@@ -220,7 +221,7 @@ def run_align(out: Path, seed: int = 0, scans: int = 4, noise_std: float = 0.002
     ``init_trans``; ``init="features"``: chained SIFT-match + RANSAC guesses (:func:`feature_chain_guess`).
     """
     if init not in ("perturbed", "features"):
-        raise ValueError(f"init: expected 'perturbed' or 'features', got {init!r}")
+        raise StereoInputError(f"init: expected 'perturbed' or 'features', got {init!r}")
     out.mkdir(parents=True, exist_ok=True)
     scene = make_scene("textured", seed)
     cams = orbit_cameras(scans, width=width, height=height, focal=200.0 * width / 200)

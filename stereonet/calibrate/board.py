@@ -29,10 +29,10 @@ def parse_board_size(text: str) -> tuple[int, int]:
     """``"9x6"`` -> ``(9, 6)``: inner corners ``COLSxROWS``, each at least 2."""
     m = re.fullmatch(r"\s*(\d+)\s*[xX*,]\s*(\d+)\s*", str(text))
     if m is None:
-        raise ValueError(f"--board: expected inner corners as COLSxROWS (e.g. 9x6), got {text!r}")
+        raise StereoInputError(f"--board: expected inner corners as COLSxROWS (e.g. 9x6), got {text!r}")
     cols, rows = int(m.group(1)), int(m.group(2))
     if cols < 2 or rows < 2:
-        raise ValueError(f"--board: expected at least 2x2 inner corners, got {cols}x{rows}")
+        raise StereoInputError(f"--board: expected at least 2x2 inner corners, got {cols}x{rows}")
     return cols, rows
 
 
@@ -52,16 +52,16 @@ class Board:
 
     def __post_init__(self) -> None:
         if int(self.cols) < 2 or int(self.rows) < 2:
-            raise ValueError(f"board: expected at least 2x2 inner corners, got {self.cols}x{self.rows}")
+            raise StereoInputError(f"board: expected at least 2x2 inner corners, got {self.cols}x{self.rows}")
         if not float(self.square) > 0:
-            raise ValueError(f"square: expected a positive size, got {self.square}")
+            raise StereoInputError(f"square: expected a positive size, got {self.square}")
         if self.dictionary is not None:
             if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
                 names = ", ".join(n for n in dir(cv2.aruco) if n.startswith("DICT_") and n == n.upper())
-                raise ValueError(f"charuco dictionary: expected one of {names}, got {self.dictionary!r}")
+                raise StereoInputError(f"charuco dictionary: expected one of {names}, got {self.dictionary!r}")
             marker = 0.75 * self.square if self.marker is None else float(self.marker)
             if not 0 < marker < self.square:
-                raise ValueError(f"marker: expected a size between 0 and the square ({self.square}), got {marker}")
+                raise StereoInputError(f"marker: expected a size between 0 and the square ({self.square}), got {marker}")
             object.__setattr__(self, "marker", marker)
 
     @property
@@ -87,7 +87,7 @@ class Board:
     def charuco(self):
         """The ``cv2.aruco.CharucoBoard`` of a ChArUco board (``(cols + 1) x (rows + 1)`` squares)."""
         if self.dictionary is None:
-            raise ValueError("board: a chessboard has no ChArUco board (give a dictionary)")
+            raise StereoInputError("board: a chessboard has no ChArUco board (give a dictionary)")
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard((self.cols + 1, self.rows + 1), float(self.square), float(self.marker),
                                       dictionary)

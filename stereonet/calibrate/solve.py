@@ -127,7 +127,7 @@ def calibrate_rig(board: Board, left: Sequence[Detection | None], right: Sequenc
     if len(left) != len(right):
         raise CalibrationError(f"right: expected as many views as left ({len(left)}), got {len(right)}")
     if min_views < 3:
-        raise ValueError(f"min_views: expected at least 3, got {min_views}")
+        raise StereoInputError(f"min_views: expected at least 3, got {min_views}")
     n = len(left)
     names = list(names) if names is not None else [(f"view {i} (left)", f"view {i} (right)") for i in range(n)]
     left, right = list(left), list(right)

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stereonet.checks import StereoInputError
 from stereonet.cli.common import USER_ERRORS, OneLineParser, fail
 
 PROG = "stereonet-calibrate"
@@ -73,24 +74,24 @@ def _check_arguments(args):
 
     cols, rows = parse_board_size(args.board)
     if not math.isfinite(args.square) or args.square <= 0:
-        raise ValueError(f"--square: expected a positive size, got {args.square}")
+        raise StereoInputError(f"--square: expected a positive size, got {args.square}")
     if args.marker is not None and args.charuco is None:
-        raise ValueError("--marker: only for a ChArUco board (pass --charuco DICT)")
+        raise StereoInputError("--marker: only for a ChArUco board (pass --charuco DICT)")
     if args.min_views < 3:
-        raise ValueError(f"--min-views: expected at least 3, got {args.min_views}")
+        raise StereoInputError(f"--min-views: expected at least 3, got {args.min_views}")
     try:
         board = Board(cols, rows, args.square, dictionary=args.charuco, marker=args.marker)
     except ValueError as e:
         which = "--marker" if str(e).startswith("marker") else "--charuco"
-        raise ValueError(f"{which}: {str(e).split(': ', 1)[1]}") from None
+        raise StereoInputError(f"{which}: {str(e).split(': ', 1)[1]}") from None
     out = args.out
     if out.suffix.lower() not in CALIB_EXTENSIONS:
-        raise ValueError(f"-o: expected a {', '.join(CALIB_EXTENSIONS)} file, got {str(out)!r}")
+        raise StereoInputError(f"-o: expected a {', '.join(CALIB_EXTENSIONS)} file, got {str(out)!r}")
     preview = args.preview if args.preview is not None else preview_path(out)
     if preview.suffix.lower() != ".png":
-        raise ValueError(f"--preview: expected a .png file, got {str(preview)!r}")
+        raise StereoInputError(f"--preview: expected a .png file, got {str(preview)!r}")
     if preview.resolve() == out.resolve():
-        raise ValueError(f"--preview: must differ from -o ({out})")
+        raise StereoInputError(f"--preview: must differ from -o ({out})")
     for flag, path in (("-o", out), ("--preview", preview)):
         if path.is_dir():
             raise IsADirectoryError(f"{flag}: {path} is a folder, expected a file name")

@@ -24,11 +24,15 @@ import time
 from pathlib import Path
 from typing import NoReturn
 
+from stereonet.checks import StereoInputError
+
 _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 _STATM = Path("/proc/self/statm")
 
-# Errors that come from the user's input (bad paths, specs, names, shapes): one line, exit code 2.
-USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, TypeError, FileNotFoundError, NotADirectoryError,
+# Errors that come from the user's input: bad arguments, specs, names or file contents (StereoInputError,
+# which every check of a public function raises) and file-system errors: one line, exit code 2. Anything else
+# (a plain ValueError or TypeError included) is a bug and shows its traceback.
+USER_ERRORS: tuple[type[BaseException], ...] = (StereoInputError, FileNotFoundError, NotADirectoryError,
                                                  IsADirectoryError, PermissionError, FileExistsError)
 
 

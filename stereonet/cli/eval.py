@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from stereonet.checks import StereoInputError
 from stereonet.cli.common import USER_ERRORS, OneLineParser, PeakMemory, Stopwatch, fail, weights_available
 from stereonet.types import StereoOutput
 
@@ -72,7 +73,7 @@ def parse_methods(text: str, skipped: list[str] | None = None) -> list[str]:
 
     names = [n.strip() for n in text.split(",") if n.strip()]
     if not names:
-        raise ValueError("--methods: expected a comma-separated list of method names or 'all', got nothing")
+        raise StereoInputError("--methods: expected a comma-separated list of method names or 'all', got nothing")
     out: list[str] = []
     for n in names:
         if n == "all":
@@ -119,7 +120,7 @@ def expand_data_specs(text: str, shared: Path | None = None, notes: list[str] | 
         else:
             specs.append(s)
     if not specs:
-        raise ValueError("--data: expected SPEC[,SPEC...], got nothing")
+        raise StereoInputError("--data: expected SPEC[,SPEC...], got nothing")
     return specs
 
 
@@ -141,9 +142,9 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     try:
         i, n = (int(x) for x in text.split("/"))
     except ValueError:
-        raise ValueError(f"--shard: expected i/n with integers, e.g. 0/4, got {text!r}") from None
+        raise StereoInputError(f"--shard: expected i/n with integers, e.g. 0/4, got {text!r}") from None
     if n < 1 or not 0 <= i < n:
-        raise ValueError(f"--shard: expected 0 <= i < n, got {text!r}")
+        raise StereoInputError(f"--shard: expected 0 <= i < n, got {text!r}")
     return i, n
 
 
@@ -478,11 +479,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{PROG}: note: {note}", file=sys.stderr)
         shard = parse_shard(args.shard)
         if args.max_disp is not None and args.max_disp <= 0:
-            raise ValueError(f"--max-disp: expected a positive integer, got {args.max_disp}")
+            raise StereoInputError(f"--max-disp: expected a positive integer, got {args.max_disp}")
         if args.fill:
             import stereonet.optimize.fill  # noqa: F401 - fail now, not after the first pair
         if args.budget is not None and not args.budget > 0:
-            raise ValueError(f"--budget: expected a positive number of seconds, got {args.budget}")
+            raise StereoInputError(f"--budget: expected a positive number of seconds, got {args.budget}")
         ev = run_evaluation(methods, specs, args.max_disp, args.fill, shard, args.plots, not args.no_progress,
                             budget=args.budget)
     except USER_ERRORS as e:

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from stereonet.checks import check_image, check_window
+from stereonet.checks import StereoInputError, check_image, check_window
 
 BITS_PER_WORD = 62
 
@@ -51,7 +51,7 @@ def census_transform(img: torch.Tensor, window: int = 5) -> torch.Tensor:
     check_image(img, "img")
     check_window(window, "census_window")
     if window < 3:
-        raise ValueError(f"census_window: expected an odd integer >= 3, got {window}")
+        raise StereoInputError(f"census_window: expected an odd integer >= 3, got {window}")
     grey = to_grey(img)
     r = window // 2
     padded = F.pad(grey, (r, r, r, r), mode="replicate")

@@ -188,7 +188,7 @@ def epipolar_lines(points: torch.Tensor, F: torch.Tensor, in_image: int = 2) -> 
         lines :math:`(*, N, 3)`.
     """
     if in_image not in (1, 2):
-        raise ValueError(f"in_image: expected 1 or 2, got {in_image!r}")
+        raise StereoInputError(f"in_image: expected 1 or 2, got {in_image!r}")
     M = F if in_image == 2 else F.transpose(-1, -2)
     lines = _homogeneous(points) @ M.transpose(-1, -2)  # *xNx3
     return lines / torch.linalg.vector_norm(lines[..., :2], dim=-1, keepdim=True).clamp_min(1e-300)
@@ -385,11 +385,11 @@ def fundamental_robust(
             f"{tuple(pts1.shape)} and {tuple(pts2.shape)}"
         )
     if method not in ("ransac", "lmeds"):
-        raise ValueError(f"method: expected 'ransac' or 'lmeds', got {method!r}")
+        raise StereoInputError(f"method: expected 'ransac' or 'lmeds', got {method!r}")
     if on_planar not in ("flag", "raise", "ignore"):
-        raise ValueError(f"on_planar: expected 'flag', 'raise' or 'ignore', got {on_planar!r}")
+        raise StereoInputError(f"on_planar: expected 'flag', 'raise' or 'ignore', got {on_planar!r}")
     if not threshold > 0:
-        raise ValueError(f"threshold: expected a positive number of pixels, got {threshold!r}")
+        raise StereoInputError(f"threshold: expected a positive number of pixels, got {threshold!r}")
     p1, p2 = pts1.detach().double(), pts2.detach().double()
     n = p1.shape[0]
     gen = torch.Generator().manual_seed(seed)

@@ -11,6 +11,7 @@ import math
 
 import torch
 
+from stereonet.checks import StereoInputError
 from stereonet.geometry.camera import back_project, project_points
 from stereonet.types import Calibration
 
@@ -91,7 +92,7 @@ def random_correspondences(
         ``N = count`` (points are drawn until enough land inside both images, ``margin`` px from the border).
     """
     if calib.image_size is None:
-        raise ValueError("calib.image_size: needed to draw visible points, got None")
+        raise StereoInputError("calib.image_size: needed to draw visible points, got None")
     g = torch.Generator().manual_seed(seed + 7919)
     w, h = calib.image_size
     kept_X, kept_1, kept_2, total = [], [], [], 0

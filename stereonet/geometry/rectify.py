@@ -253,7 +253,7 @@ def warp_image(
         m = source_map.to(image.dtype).to(image.device).expand(b, -1, -1, -1)
         return remap(image, m[..., 0], m[..., 1], mode="bilinear", padding_mode="zeros", align_corners=True)
     if H is None or out_size is None:
-        raise ValueError("warp_image: give H and out_size, or source_map")
+        raise StereoInputError("warp_image: give H and out_size, or source_map")
     M = H.to(image.dtype).to(image.device).expand(b, 3, 3)
     return warp_perspective(image, M, out_size, mode="bilinear", padding_mode="zeros", align_corners=True)
 
@@ -326,7 +326,7 @@ def stereo_rectify(
     if method == "opencv":
         return _stereo_rectify_opencv(calib, alpha, out_h, out_w)
     if method != "kornia":
-        raise ValueError(f"method: expected 'kornia' or 'opencv', got {method!r}")
+        raise StereoInputError(f"method: expected 'kornia' or 'opencv', got {method!r}")
     K1, K2, R = calib.K1, calib.K2, calib.R
     reversed_rig = is_reversed_rig(calib)
     R1 = rectifying_rotation(R, -calib.t if reversed_rig else calib.t)  # upright: x against the baseline
@@ -444,7 +444,7 @@ def rectify_points(points: torch.Tensor, rect: Rectification, view: str = "left"
     """Map recorded pixels :math:`(*, N, 2)` of the original ``view`` ("left"/"right") to rectified pixels
     (lens distortion removed first when the original calibration has it)."""
     if view not in ("left", "right"):
-        raise ValueError(f"view: expected 'left' or 'right', got {view!r}")
+        raise StereoInputError(f"view: expected 'left' or 'right', got {view!r}")
     H = (rect.H1 if view == "left" else rect.H2).to(points.dtype).to(points.device)
     if rect.original is not None:
         K = rect.original.K1 if view == "left" else rect.original.K2
@@ -528,7 +528,7 @@ def hartley_homographies(
         A = torch.cat([x1, torch.ones_like(x1[:, :1])], 1)  # Nx3
         abc = torch.linalg.lstsq(A, x2[:, :1]).solution[:, 0]
     else:
-        raise ValueError(f"match: expected 'shape' or 'disparity', got {match!r}")
+        raise StereoInputError(f"match: expected 'shape' or 'disparity', got {match!r}")
     HA = torch.tensor(
         [[float(abc[0]), float(abc[1]), float(abc[2])], [0, 1.0, 0], [0, 0, 1.0]], dtype=torch.float64
     )

@@ -173,7 +173,7 @@ def triangulate(
     elif method == "midpoint":
         X, finite = _midpoint(x1, x2, K1, K2, R, t)
     else:
-        raise ValueError(f"method: expected 'dlt' or 'midpoint', got {method!r}")
+        raise StereoInputError(f"method: expected 'dlt' or 'midpoint', got {method!r}")
     err = ((reprojection_error(X, P1, x1) ** 2 + reprojection_error(X, P2, x2) ** 2) / 2).sqrt()
     in_front = (X[..., 2] > 0) & ((X @ R.T + t)[..., 2] > 0)
     return Triangulation(X, err, in_front, in_front & finite)

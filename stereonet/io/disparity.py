@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stereonet.checks import StereoInputError
 from stereonet.io.atomic import atomic_write_bytes
 from stereonet.io.errors import existing_file, fail
 from stereonet.io.image import encode_image, read_array
@@ -33,7 +34,7 @@ def read_disparity(path: str | os.PathLike, scale: float | None = None) -> tuple
     p = existing_file(path)
     if p.suffix.lower() == ".pfm":
         if scale is not None:
-            raise ValueError(f"scale: PFM disparities are stored in pixels, expected scale=None, got {scale}")
+            raise StereoInputError(f"scale: PFM disparities are stored in pixels, expected scale=None, got {scale}")
         d = read_pfm(p)
         if d.ndim != 2:
             raise fail(p, f"expected a single-channel ('Pf') disparity PFM, got shape {d.shape}")
@@ -46,12 +47,12 @@ def read_disparity(path: str | os.PathLike, scale: float | None = None) -> tuple
         scale = KITTI_SCALE if scale is None else scale
     elif raw.dtype == np.uint8:
         if scale is None:
-            raise ValueError(f"scale: {p} is an 8-bit disparity map; pass its scale (Middlebury 2001: "
+            raise StereoInputError(f"scale: {p} is an 8-bit disparity map; pass its scale (Middlebury 2001: "
                              f"Tsukuba 16, Venus 8; Middlebury 2003 quarter size: 4)")
     else:
         raise fail(p, f"expected an 8- or 16-bit disparity image, got {raw.dtype}")
     if not scale > 0:
-        raise ValueError(f"scale: expected a positive number, got {scale}")
+        raise StereoInputError(f"scale: expected a positive number, got {scale}")
     valid = raw > 0
     return (raw.astype(np.float32) / np.float32(scale)), valid
 
@@ -60,7 +61,7 @@ def _disp_and_valid(disp, valid) -> tuple[np.ndarray, np.ndarray]:
     d = np.asarray(disp.detach().cpu().numpy() if hasattr(disp, "detach") else disp, dtype=np.float64)
     d = d.reshape(d.shape[-2:]) if d.ndim > 2 and int(np.prod(d.shape[:-2])) == 1 else d
     if d.ndim != 2:
-        raise ValueError(f"disp: expected shape (H, W) (or with leading 1s), got {np.shape(disp)}")
+        raise StereoInputError(f"disp: expected shape (H, W) (or with leading 1s), got {np.shape(disp)}")
     if valid is None:
         v = np.isfinite(d)
     else:
@@ -68,12 +69,12 @@ def _disp_and_valid(disp, valid) -> tuple[np.ndarray, np.ndarray]:
         if v.dtype != np.bool_:
             raise TypeError(f"valid: expected a bool mask, got {v.dtype}")
         if v.size != d.size:
-            raise ValueError(f"valid: expected {d.shape} like disp, got {v.shape}")
+            raise StereoInputError(f"valid: expected {d.shape} like disp, got {v.shape}")
         v = v.reshape(d.shape)
     if not np.isfinite(d[v]).all():
-        raise ValueError("disp: expected finite values where valid, got NaN or inf")
+        raise StereoInputError("disp: expected finite values where valid, got NaN or inf")
     if (d[v] < 0).any():
-        raise ValueError(f"disp: expected disparities >= 0 where valid, got min {d[v].min():.3f}")
+        raise StereoInputError(f"disp: expected disparities >= 0 where valid, got min {d[v].min():.3f}")
     return d, v
 
 
@@ -82,7 +83,7 @@ def _write_scaled(path, disp, valid, scale: float, dtype) -> None:
     top = np.iinfo(dtype).max
     q = np.rint(d * scale)
     if v.any() and q[v].max() > top:
-        raise ValueError(f"disp: max {d[v].max():.3f} does not fit in {dtype.__name__} at scale {scale} "
+        raise StereoInputError(f"disp: max {d[v].max():.3f} does not fit in {dtype.__name__} at scale {scale} "
                          f"(limit {top / scale:.3f})")
     q = np.where(v, np.clip(q, 1, top), 0).astype(dtype)  # a valid 0 would read back as invalid: store 1
     atomic_write_bytes(path, encode_image(path, q))
@@ -97,14 +98,14 @@ def write_disparity_png16(path: str | os.PathLike, disp, valid=None) -> None:
             1/256 so that they stay valid.
     """
     if Path(path).suffix.lower() != ".png":
-        raise ValueError(f"path: expected a .png file for a 16-bit disparity map, got {str(path)!r}")
+        raise StereoInputError(f"path: expected a .png file for a 16-bit disparity map, got {str(path)!r}")
     _write_scaled(path, disp, valid, KITTI_SCALE, np.uint16)
 
 
 def write_disparity_png8(path: str | os.PathLike, disp, valid=None, scale: float = 4.0) -> None:
     """Write a Middlebury-2001/2003-style 8-bit PNG/PGM (value = round(d * scale), 0 = unknown), atomically."""
     if Path(path).suffix.lower() not in (".png", ".pgm"):
-        raise ValueError(f"path: expected a .png or .pgm file, got {str(path)!r}")
+        raise StereoInputError(f"path: expected a .png or .pgm file, got {str(path)!r}")
     _write_scaled(path, disp, valid, float(scale), np.uint8)
 
 

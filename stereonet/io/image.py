@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import torch
 
+from stereonet.checks import StereoInputError
 from stereonet.io.atomic import atomic_write_bytes
 from stereonet.io.errors import existing_file, fail
 
@@ -167,21 +168,21 @@ def to_uint8_rgb(img, name: str = "img") -> np.ndarray:
         t = img.detach().cpu()
         if t.dim() == 4:
             if t.shape[0] != 1:
-                raise ValueError(f"{name}: expected a single image (1, C, H, W), got {tuple(t.shape)}")
+                raise StereoInputError(f"{name}: expected a single image (1, C, H, W), got {tuple(t.shape)}")
             t = t[0]
         if t.dim() == 3:
             if t.shape[0] not in (1, 3):
-                raise ValueError(f"{name}: expected 1 or 3 channels in (C, H, W), got {tuple(t.shape)}")
+                raise StereoInputError(f"{name}: expected 1 or 3 channels in (C, H, W), got {tuple(t.shape)}")
             t = t.permute(1, 2, 0)  # HxWxC
         elif t.dim() != 2:
-            raise ValueError(f"{name}: expected shape (1, C, H, W), (C, H, W) or (H, W), got {tuple(img.shape)}")
+            raise StereoInputError(f"{name}: expected shape (1, C, H, W), (C, H, W) or (H, W), got {tuple(img.shape)}")
         if not t.is_floating_point():
             if t.dtype != torch.uint8:
                 raise TypeError(f"{name}: expected a float tensor in [0, 1] or uint8, got {t.dtype}")
             arr = t.numpy()
         else:
             if not bool(torch.isfinite(t).all()):
-                raise ValueError(f"{name}: expected finite values, got NaN or inf")
+                raise StereoInputError(f"{name}: expected finite values, got NaN or inf")
             arr = (t.float().clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).numpy()
     else:
         arr = np.asarray(img)
@@ -189,12 +190,12 @@ def to_uint8_rgb(img, name: str = "img") -> np.ndarray:
             if not np.issubdtype(arr.dtype, np.floating):
                 raise TypeError(f"{name}: expected a uint8 or float array, got {arr.dtype}")
             if not np.isfinite(arr).all():
-                raise ValueError(f"{name}: expected finite values, got NaN or inf")
+                raise StereoInputError(f"{name}: expected finite values, got NaN or inf")
             arr = (np.clip(arr, 0, 1) * 255.0 + 0.5).astype(np.uint8)
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[:, :, 0]
     if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3)) or arr.size == 0:
-        raise ValueError(f"{name}: expected shape (H, W) or (H, W, 3), got {arr.shape}")
+        raise StereoInputError(f"{name}: expected shape (H, W) or (H, W, 3), got {arr.shape}")
     return np.ascontiguousarray(arr)
 
 
@@ -202,17 +203,17 @@ def encode_image(path: str | os.PathLike, arr: np.ndarray) -> bytes:
     """Encode a uint8/uint16 array (RGB order for colour) in the format named by ``path``'s extension."""
     ext = Path(path).suffix.lower()
     if not ext:
-        raise ValueError(f"path: expected a file extension (.png, .ppm, .pgm, .jpg...), got {str(path)!r}")
+        raise StereoInputError(f"path: expected a file extension (.png, .ppm, .pgm, .jpg...), got {str(path)!r}")
     if arr.ndim == 3:
         arr = cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
     if ext == ".pgm" and arr.ndim == 3:
-        raise ValueError(f"{path}: a .pgm file holds a greyscale image, got a colour one")
+        raise StereoInputError(f"{path}: a .pgm file holds a greyscale image, got a colour one")
     try:
         ok, buf = cv2.imencode(ext, arr)
     except cv2.error as e:
-        raise ValueError(f"{path}: OpenCV cannot write extension {ext!r} ({e.msg.strip() if hasattr(e, 'msg') else e})") from None
+        raise StereoInputError(f"{path}: OpenCV cannot write extension {ext!r} ({e.msg.strip() if hasattr(e, 'msg') else e})") from None
     if not ok:
-        raise ValueError(f"{path}: OpenCV failed to encode the image as {ext}")
+        raise StereoInputError(f"{path}: OpenCV failed to encode the image as {ext}")
     return buf.tobytes()
 
 

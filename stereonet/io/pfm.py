@@ -12,6 +12,7 @@ import os
 
 import numpy as np
 
+from stereonet.checks import StereoInputError
 from stereonet.io.atomic import atomic_write_bytes
 from stereonet.io.errors import existing_file, fail
 
@@ -98,7 +99,7 @@ def write_pfm(path: str | os.PathLike, arr, little_endian: bool = True) -> None:
     if a.ndim == 3 and a.shape[2] == 1:
         a = a[:, :, 0]
     if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] != 3) or a.size == 0:
-        raise ValueError(f"arr: expected shape (H, W) or (H, W, 3), got {tuple(np.shape(arr))}")
+        raise StereoInputError(f"arr: expected shape (H, W) or (H, W, 3), got {tuple(np.shape(arr))}")
     channels = 1 if a.ndim == 2 else 3
     h, w = a.shape[:2]
     header = f"{'Pf' if channels == 1 else 'PF'}\n{w} {h}\n{-1.0 if little_endian else 1.0}\n".encode("ascii")

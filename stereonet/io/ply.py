@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 
+from stereonet.checks import StereoInputError
 from stereonet.io.atomic import atomic_write_bytes
 from stereonet.io.errors import existing_file, fail
 
@@ -27,16 +28,16 @@ def write_ply(path: str | os.PathLike, points, colors=None) -> None:
     """
     pts = np.asarray(points.detach().cpu().numpy() if hasattr(points, "detach") else points)
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"points: expected shape (N, 3), got {pts.shape}")
+        raise StereoInputError(f"points: expected shape (N, 3), got {pts.shape}")
     if not np.isfinite(pts).all():
-        raise ValueError("points: expected finite coordinates, got NaN or inf")
+        raise StereoInputError("points: expected finite coordinates, got NaN or inf")
     n = pts.shape[0]
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     props = "property float x\nproperty float y\nproperty float z\n"
     if colors is not None:
         col = np.asarray(colors.detach().cpu().numpy() if hasattr(colors, "detach") else colors)
         if col.shape != (n, 3):
-            raise ValueError(f"colors: expected shape ({n}, 3) like points, got {col.shape}")
+            raise StereoInputError(f"colors: expected shape ({n}, 3) like points, got {col.shape}")
         if col.dtype != np.uint8:
             if not np.issubdtype(col.dtype, np.floating):
                 raise TypeError(f"colors: expected uint8 or float in [0, 1], got {col.dtype}")

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import torch
 
-from stereonet.checks import check_stereo_inputs
+from stereonet.checks import StereoInputError, check_stereo_inputs
 from stereonet.matchers import register
 from stereonet.optimize._global_mrf import contrast_edge_weights, left_occlusions_from_disparity
 from stereonet.optimize.bp import belief_propagation
@@ -79,7 +79,7 @@ def dp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
         subpixel: parabola refinement on the data cost.
     """
     if mode not in ("occlusion", "energy"):
-        raise ValueError(f"mode: expected 'occlusion' or 'energy', got {mode!r}")
+        raise StereoInputError(f"mode: expected 'occlusion' or 'energy', got {mode!r}")
     left, right, max_disp = check_stereo_inputs(left, right, max_disp)
     volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
     extras: dict[str, torch.Tensor] = {}

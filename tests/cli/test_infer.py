@@ -457,3 +457,26 @@ def test_reversed_unrectified_rig_stays_upright(tmp_path, capsys):
     assert np.median(near) < 0.02 * depth  # the same surfaces (measured: 0.8 %)
     turned = cKDTree(fwd_in_right * [-1, -1, 1]).query(rev[::10])[0]  # what a 180-degree turn would give
     assert np.median(turned) > 3 * np.median(near)
+
+
+@pytest.mark.parametrize("error", [ValueError, TypeError, IndexError])
+def test_an_internal_error_is_a_traceback_not_exit_2(pair_files, tmp_path, capsys, monkeypatch, error):
+    """Only input and file errors (StereoInputError, OSError kinds) are one line + exit 2; a bug inside a
+    matcher (a plain ValueError or TypeError included) propagates with its traceback."""
+    from stereonet import matchers
+
+    def buggy(left, right, max_disp):
+        raise error("an internal bug")
+
+    monkeypatch.setitem(matchers._REGISTRY, "buggy-test", matchers.MatcherSpec("buggy-test", buggy, "classical", "x"))
+    with pytest.raises(error, match="internal bug"):
+        infer.main([str(pair_files[0]), str(pair_files[1]), "-o", str(tmp_path / "out"), "--method", "buggy-test",
+                    "--no-progress"])
+    from stereonet.checks import StereoInputError
+
+    def bad_input(left, right, max_disp):
+        raise StereoInputError("max_disp: expected something else")
+
+    monkeypatch.setitem(matchers._REGISTRY, "buggy-test", matchers.MatcherSpec("buggy-test", bad_input, "classical", "x"))
+    code, err = run_main(capsys, *pair_files, "-o", tmp_path / "out2", "--method", "buggy-test")
+    assert code == 2 and "max_disp" in one_line_error(err)
