@@ -17,7 +17,10 @@ STAGES = [
 ]
 
 
-def main(out: Path = Path(__file__).resolve().parent / "readme" / "data_path.png") -> None:
+OUT = Path(__file__).resolve().parent / "readme" / "data_path.png"
+
+
+def main(out: Path = OUT) -> None:
     fig = Figure(figsize=(13, 3.3), dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.add_axes([0, 0, 1, 1])

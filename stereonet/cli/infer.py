@@ -2,6 +2,7 @@
 
     python infer.py LEFT RIGHT -o OUT [--method NAME] [--max-disp N] [--calib FILE | --uncalibrated]
                     [--checkpoint CKPT] [--overwrite] [--device cpu] [--fill]
+                    [--backend torch|onnx [--onnx-model FILE]]
 
 Writes ``OUT/disparity.pfm`` (float, ``inf`` = invalid, left-referenced), ``OUT/disparity.png`` (colour),
 ``OUT/info.json`` (method, disparity range, timing, what was rectified) and, with a calibration,
@@ -458,6 +459,11 @@ def build_parser() -> OneLineParser:
                    help="Middlebury calib.txt, KITTI calib or OpenCV YAML/JSON stereo calibration")
     g.add_argument("--uncalibrated", action="store_true", help="rectify from SIFT matches (no metric depth)")
     p.add_argument("--checkpoint", type=Path, default=None, help="weights for a learned method")
+    p.add_argument("--backend", choices=("torch", "onnx"), default="torch",
+                   help="where a learned method's network runs: torch (default) or onnxruntime (CPU)")
+    p.add_argument("--onnx-model", type=Path, default=None,
+                   help="with --backend onnx: the file `python -m stereonet.export onnx` wrote (default: export "
+                        "the weights in memory)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--fill", action="store_true",
@@ -477,6 +483,36 @@ def build_parser() -> OneLineParser:
     return p
 
 
+def backend_options(args, method: str, spec) -> dict:
+    """The matcher options of ``--backend``/``--onnx-model`` (none for the torch default), checked."""
+    if args.onnx_model is not None and args.backend != "onnx":
+        raise StereoInputError("--onnx-model: only used with --backend onnx")
+    if args.backend == "torch":
+        return {}
+    if spec.kind != "learned":
+        raise StereoInputError(f"--backend onnx: method {method!r} is {spec.kind} and has no network to run in "
+                               "onnxruntime; use a learned method (dispnet, smd, siamese, siamese-sgm, ...)")
+    try:
+        import onnx  # noqa: F401
+        import onnxruntime  # noqa: F401
+    except ImportError as e:
+        raise StereoInputError(f"--backend onnx: {e.name} is not installed (pip install 'stereonet[onnx]')") from None
+    if args.onnx_model is None:
+        return {"backend": "onnx"}
+    if args.checkpoint is not None:
+        raise StereoInputError("--checkpoint: the ONNX model carries its own weights; pass --checkpoint or "
+                               "--onnx-model, not both")
+    if not args.onnx_model.is_file():
+        raise FileNotFoundError(f"--onnx-model: no such file: {args.onnx_model}")
+    from stereonet.models.registered import NETWORK_OF, network_graph
+
+    try:  # opens it once: not an export of this method's network is an argument error
+        network_graph(NETWORK_OF[method], backend="onnx", onnx_model=args.onnx_model)
+    except StereoInputError as e:
+        raise StereoInputError(f"--onnx-model: {str(e).removeprefix('onnx_model: ')}") from None
+    return {"backend": "onnx", "onnx_model": str(args.onnx_model)}
+
+
 def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
     """Check every argument before anything is computed or written."""
     from stereonet import matchers
@@ -484,29 +520,29 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
     if args.out.exists() and not args.overwrite:
         raise FileExistsError(f"-o: {args.out} already exists (pass --overwrite to replace it)")
     if args.max_disp is not None and args.max_disp <= 0:
-        raise ValueError(f"--max-disp: expected a positive integer, got {args.max_disp}")
+        raise StereoInputError(f"--max-disp: expected a positive integer, got {args.max_disp}")
     if not 0 < args.scale <= 1:
-        raise ValueError(f"--scale: expected 0 < S <= 1, got {args.scale}")
+        raise StereoInputError(f"--scale: expected 0 < S <= 1, got {args.scale}")
     if not 0 <= args.alpha <= 1:
-        raise ValueError(f"--alpha: expected 0 <= A <= 1, got {args.alpha}")
+        raise StereoInputError(f"--alpha: expected 0 <= A <= 1, got {args.alpha}")
     if args.max_disp is not None and args.min_disp >= args.max_disp:
-        raise ValueError(f"--min-disp: expected less than --max-disp {args.max_disp}, got {args.min_disp}")
+        raise StereoInputError(f"--min-disp: expected less than --max-disp {args.max_disp}, got {args.min_disp}")
     try:
         device = torch.device(args.device)
         torch.empty(0, device=device)
     except (RuntimeError, AssertionError) as e:
-        raise ValueError(f"--device: {args.device!r} is not usable here ({str(e).splitlines()[0]})") from None
+        raise StereoInputError(f"--device: {args.device!r} is not usable here ({str(e).splitlines()[0]})") from None
     pairs = find_pairs(args.left, args.right)
     method = args.method or default_method()
     spec = matchers.spec(method)
-    options: dict = {}
+    options: dict = backend_options(args, method, spec)
     if args.checkpoint is not None:
         if not spec.needs_weights:
-            raise ValueError(f"--checkpoint: method {method!r} takes no weights")
+            raise StereoInputError(f"--checkpoint: method {method!r} takes no weights")
         if not args.checkpoint.is_file():
             raise FileNotFoundError(f"--checkpoint: no such file: {args.checkpoint}")
         options["checkpoint"] = str(args.checkpoint)
-    elif spec.needs_weights and not weights_available(method):
+    elif spec.needs_weights and "onnx_model" not in options and not weights_available(method):
         raise FileNotFoundError(f"--method {method}: its weights are missing (pass --checkpoint CKPT)")
     calib = None
     if args.calib is not None:

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stereonet.checks import check_image_pair
+from stereonet.checks import StereoInputError, check_image_pair
 from stereonet.models.layers import (
     InputPadder,
     conv3d_block,
@@ -92,15 +92,15 @@ class DispNet(nn.Module):
                  aggregation: str = "2d", groups: int = 4, upsample: str = "bilinear") -> None:
         super().__init__()
         if max_disp < 4:
-            raise ValueError(f"max_disp: expected >= 4, got {max_disp}")
+            raise StereoInputError(f"max_disp: expected >= 4, got {max_disp}")
         if aggregation not in ("2d", "3d"):
-            raise ValueError(f"aggregation: expected '2d' or '3d', got {aggregation!r}")
+            raise StereoInputError(f"aggregation: expected '2d' or '3d', got {aggregation!r}")
         if groups < 1 or (2 * channels) % groups:
-            raise ValueError(f"groups: expected a divisor of 2 * channels = {2 * channels}, got {groups}")
+            raise StereoInputError(f"groups: expected a divisor of 2 * channels = {2 * channels}, got {groups}")
         if upsample not in ("bilinear", "select"):
-            raise ValueError(f"upsample: expected 'bilinear' or 'select', got {upsample!r}")
+            raise StereoInputError(f"upsample: expected 'bilinear' or 'select', got {upsample!r}")
         if refine_radius < 0:
-            raise ValueError(f"refine_radius: expected >= 0, got {refine_radius}")
+            raise StereoInputError(f"refine_radius: expected >= 0, got {refine_radius}")
         self.max_disp = int(max_disp)
         self.channels = int(channels)
         self.refine_radius = int(refine_radius)
@@ -184,7 +184,7 @@ class DispNet(nn.Module):
         """left, right: :math:`(B, C, H, W)` in [0, 1], H and W multiples of :attr:`stride`."""
         h, w = left.shape[-2:]
         if h % self.stride or w % self.stride:
-            raise ValueError(f"left: expected H and W multiples of {self.stride} (use predict_disparity to pad), "
+            raise StereoInputError(f"left: expected H and W multiples of {self.stride} (use predict_disparity to pad), "
                              f"got {tuple(left.shape)}")
         x_left, x_right = standardize_image(left), standardize_image(right)
         both = torch.cat([x_left, x_right], dim=0)  # 2BxCxHxW: one pass of the shared encoder

@@ -13,6 +13,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from stereonet.checks import StereoInputError, check_shape
+from stereonet.models.layers import image_mean_std
 
 INVALID_COST = 2.0
 """Cost of a pixel whose match would fall outside the right image: the largest possible 1 - <f_l, f_r>."""
@@ -21,8 +22,7 @@ INVALID_COST = 2.0
 def _grey_standardized(image: torch.Tensor) -> torch.Tensor:
     """(B, C, H, W) in [0, 1] -> (B, 1, H, W) grey, zero mean and unit std per image (as MC-CNN normalises)."""
     grey = image.mean(dim=1, keepdim=True) if image.shape[1] != 1 else image
-    mean = grey.mean(dim=(2, 3), keepdim=True)
-    std = grey.std(dim=(2, 3), keepdim=True)
+    mean, std = image_mean_std(grey)  # float64 statistics: every runtime gets the same (see image_mean_std)
     return (grey - mean) / (std + 1e-2)  # 1e-2: keeps flat images finite
 
 
@@ -37,7 +37,7 @@ class SiameseNet(nn.Module):
     def __init__(self, channels: int = 32, layers: int = 4) -> None:
         super().__init__()
         if layers < 1:
-            raise ValueError(f"layers: expected >= 1, got {layers}")
+            raise StereoInputError(f"layers: expected >= 1, got {layers}")
         self.channels, self.layers = int(channels), int(layers)
         self.radius = self.layers  # each unpadded 3x3 conv shrinks the map by one pixel per side
         mods: list[nn.Module] = []
@@ -145,7 +145,7 @@ def matching_loss(s_pos: torch.Tensor, s_neg: torch.Tensor, margin: float = 0.2,
         logits = torch.cat([s_pos.flatten(), s_neg.flatten()]) / margin
         labels = torch.cat([torch.ones_like(s_pos.flatten()), torch.zeros_like(s_neg.flatten())])
         return F.binary_cross_entropy_with_logits(logits, labels)
-    raise ValueError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
+    raise StereoInputError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
 
 
 def siamese_pair_loss(net: SiameseNet, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor,

@@ -19,6 +19,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from stereonet.models.dispnet import DispNet, DispNetOutput, run_padded
+from stereonet.models.layers import InputPadder
 
 MIN_SCALE = 0.05
 """Smallest Laplacian scale b in pixels: keeps the NLL bounded (b -> 0 would give -inf) and is finer than
@@ -129,6 +130,28 @@ class SMDNet(nn.Module):
         return SMDOutput(disparity=disparity, uncertainty=uncertainty, mixture=mix, backbone=backbone)
 
 
+def padded_query_grid(batch: int, height: int, width: int, padder: InputPadder, upsample: float = 1.0,
+                      device=None, dtype=None) -> torch.Tensor:
+    """Query grid :math:`(B, round(H * upsample), round(W * upsample), 2)` over the unpadded ``height x width``
+    image, in the normalised coordinates of the map ``padder`` padded it to (so nothing is cropped)."""
+    hp, wp = height + padder.pad_h, width + padder.pad_w
+    grid = query_grid(batch, round(height * upsample), round(width * upsample), device=device, dtype=dtype).clone()
+    grid[..., 0] = (grid[..., 0] + 1.0) * (width / wp) - 1.0
+    grid[..., 1] = (grid[..., 1] + 1.0) * (height / hp) - 1.0
+    return grid
+
+
+def mixture_outputs(mix: MixtureParams, scale: float, with_mixture: bool = False):
+    """What :func:`predict_smd` returns for the mixture ``mix`` (input pixels) on an output grid of ``scale``
+    times the input width: (disparity, uncertainty[, params]) in pixels of the output grid."""
+    disparity, uncertainty = mix.mode_disparity()
+    if not with_mixture:
+        return disparity * scale, uncertainty * scale
+    params = {"mu1": mix.mu1 * scale, "mu2": mix.mu2 * scale, "b1": mix.b1 * scale, "b2": mix.b2 * scale,
+              "pi": mix.pi}
+    return disparity * scale, uncertainty * scale, params
+
+
 @torch.no_grad()
 def predict_smd(net: SMDNet, left: torch.Tensor, right: torch.Tensor, upsample: float = 1.0,
                 with_mixture: bool = False):
@@ -142,18 +165,5 @@ def predict_smd(net: SMDNet, left: torch.Tensor, right: torch.Tensor, upsample: 
     """
     backbone, padder = run_padded(net.backbone, left, right)
     b, _, h, w = left.shape
-    hp, wp = h + padder.pad_h, w + padder.pad_w
-    hq, wq = round(h * upsample), round(w * upsample)
-    # grid over the unpadded region [0, w) x [0, h) expressed in the padded map's normalised coordinates
-    grid = query_grid(b, hq, wq, device=left.device, dtype=left.dtype)
-    grid = grid.clone()
-    grid[..., 0] = (grid[..., 0] + 1.0) * (w / wp) - 1.0
-    grid[..., 1] = (grid[..., 1] + 1.0) * (h / hp) - 1.0
-    mix = net.query(backbone, grid)
-    disparity, uncertainty = mix.mode_disparity()
-    scale = wq / w
-    if not with_mixture:
-        return disparity * scale, uncertainty * scale
-    params = {"mu1": mix.mu1 * scale, "mu2": mix.mu2 * scale, "b1": mix.b1 * scale, "b2": mix.b2 * scale,
-              "pi": mix.pi}
-    return disparity * scale, uncertainty * scale, params
+    grid = padded_query_grid(b, h, w, padder, upsample, device=left.device, dtype=left.dtype)
+    return mixture_outputs(net.query(backbone, grid), grid.shape[2] / w, with_mixture)
