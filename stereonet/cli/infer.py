@@ -12,8 +12,11 @@ Writes ``OUT/disparity.pfm`` (float, ``inf`` = invalid, left-referenced), ``OUT/
 ``OUT/rectified_left.png``, ``OUT/rectified_right.png`` and ``OUT/epipolar_check.png``, and every map is in
 the rectified left frame. An uncalibrated pair has no metric scale, so it gets no depth or cloud.
 
-LEFT/RIGHT may be two files, two folders (images paired in sorted order) or two quoted globs: every pair is
-processed with a progress bar into ``OUT/<left file stem>/``. Everything is written into a temporary folder
+LEFT/RIGHT may be two files, two folders (images paired in sorted order), two quoted globs or two video
+files (frame i with frame i): every pair is processed with a progress bar into ``OUT/<left file stem>/``
+(``OUT/frame_NNNNNN/`` for videos). With ``--calib`` such a batch is a fixed rig: the rectification (geometry,
+maps, padding masks) is computed for the first pair and reused for every other (info.json
+``rectification_maps``). Everything is written into a temporary folder
 beside OUT and renamed to OUT at the end, so an interrupted or failed run leaves nothing half-written. In a
 batch, a pair that fails is reported (one line) and left out; the others are kept and the exit code is 1.
 
@@ -34,7 +37,7 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +48,7 @@ from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail, we
 
 PROG = "infer.py"
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
+VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 # Preference order for the default method: the order of real-pair bad-2 in BENCHMARKS.md. Our `sgm` is the
 # most accurate there and among the fastest; the learned ones follow (used when their weights exist).
 PREFERRED = ("sgm", "siamese-sgm", "dispnet", "smd", "siamese", "opencv-sgbm")
@@ -58,13 +62,76 @@ class Pair:
     left: Path
     right: Path
     name: str  # sub-folder of OUT in a batch ("" for a single pair)
+    frame: int | None = None  # frame index when LEFT/RIGHT are two videos
+
+
+def video_frame_count(path: Path, which: str) -> int:
+    """Frames in a video file (OpenCV's count, checked by reading the last frame); one-line error otherwise."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            raise StereoInputError(f"{which}: cannot open {path} as a video (OpenCV could not decode it)")
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        while n > 0:  # containers may over-count: the last readable frame decides
+            cap.set(cv2.CAP_PROP_POS_FRAMES, n - 1)
+            if cap.read()[0]:
+                break
+            n -= 1
+        if n <= 0:
+            raise StereoInputError(f"{which}: no readable frame in the video {path}")
+        return n
+    finally:
+        cap.release()
+
+
+class _VideoFrames:
+    """Sequential frame reader per video file (one open capture each; seeks only when a frame is skipped)."""
+
+    def __init__(self) -> None:
+        self.open: dict[Path, list] = {}
+
+    def read(self, path: Path, index: int) -> torch.Tensor:
+        import cv2
+
+        cap, pos = self.open.get(path, (None, -1))
+        if cap is None:
+            cap = cv2.VideoCapture(str(path))
+        if pos != index:
+            cap.set(cv2.CAP_PROP_POS_FRAMES, index)
+        ok, frame = cap.read()
+        if not ok:
+            raise StereoInputError(f"{path}: cannot read frame {index}")
+        self.open[path] = [cap, index + 1]
+        rgb = frame[..., ::-1] if frame.ndim == 3 else frame[..., None]
+        return torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1)[None].float() / 255.0
+
+    def close(self) -> None:
+        for cap, _ in self.open.values():
+            cap.release()
+        self.open.clear()
+
+
+VIDEO_FRAMES = _VideoFrames()
 
 
 # ------------------------------------------------------------------------------------------ arguments
 
 def find_pairs(left: str, right: str) -> list[Pair]:
-    """Two files -> one pair; two folders or two globs -> image files paired in sorted order."""
+    """Two files -> one pair; two videos -> one pair per frame; two folders or two globs -> image files paired
+    in sorted order."""
     lp, rp = Path(left), Path(right)
+    videos = [p.suffix.lower() in VIDEO_EXTS for p in (lp, rp)]
+    if lp.is_file() and rp.is_file() and any(videos):
+        if not all(videos):
+            raise StereoInputError(f"{'RIGHT' if videos[0] else 'LEFT'}: expected a video like "
+                                   f"{'LEFT' if videos[0] else 'RIGHT'} ({(lp if videos[0] else rp).name}), got "
+                                   f"{(rp if videos[0] else lp).name}")
+        n, m = video_frame_count(lp, "LEFT"), video_frame_count(rp, "RIGHT")
+        if n != m:
+            raise StereoInputError(f"RIGHT: expected as many frames as LEFT ({n}), got {m} in {rp}")
+        return [Pair(lp, rp, f"frame_{i:06d}", frame=i) for i in range(n)]
     if lp.is_file() and rp.is_file():
         return [Pair(lp, rp, "")]
 
@@ -108,7 +175,10 @@ def read_pair(pair: Pair, device: torch.device) -> tuple[torch.Tensor, torch.Ten
     """Both images as (1, C, H, W) float on ``device``; a grey image next to a colour one becomes RGB."""
     from stereonet.io import read_image
 
-    left, right = read_image(pair.left), read_image(pair.right)
+    if pair.frame is not None:
+        left, right = VIDEO_FRAMES.read(pair.left, pair.frame), VIDEO_FRAMES.read(pair.right, pair.frame)
+    else:
+        left, right = read_image(pair.left), read_image(pair.right)
     if left.shape[-2:] != right.shape[-2:]:
         raise StereoInputError(f"RIGHT: image size {right.shape[-1]}x{right.shape[-2]} ({pair.right}) differs from "
                                f"LEFT {left.shape[-1]}x{left.shape[-2]} ({pair.left})")
@@ -186,6 +256,8 @@ class Settings:
     alpha: float = 1.0
     unit: str | None = None  # unit of the calibration's baseline; None = unknown
     cloud_frame: str = "rectified"
+    # a fixed rig's rectification (geometry, maps, content masks), computed for the first pair of a batch
+    rig_cache: dict = field(default_factory=dict)
 
 
 def scale_pair(left: torch.Tensor, right: torch.Tensor, calib, scale: float):
@@ -303,12 +375,23 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
             info["rectified"] = "uncalibrated (SIFT + robust F)"
             depth_calib = None
         else:
-            rect = geometry.rectify_calibrated(left, right, calib, alpha=st.alpha)
+            key = ("calibrated", h, w, st.alpha)  # one --calib for the whole batch: a fixed rig
+            prepared = st.rig_cache.get(key)
+            rect = geometry.rectify_calibrated(left, right, calib, alpha=st.alpha,
+                                               prepared=None if prepared is None else prepared[0])
             info["rectified"] = "calibrated"
+            info["rectification_maps"] = "computed" if prepared is None else "reused (fixed rig, computed once)"
             depth_calib = rect.calib
             write_rectified_calibration(out_dir / "rectified_calib.yaml", rect, st.unit)
-        left_content = geometry.content_mask(rect.maps[0], w, h).to(device)
-        right_content = geometry.content_mask(rect.maps[1], w, h).to(device)
+        if not uncalibrated and prepared is not None:
+            left_content, right_content = prepared[1], prepared[2]
+        else:
+            left_content = geometry.content_mask(rect.maps[0], w, h).to(device)
+            right_content = geometry.content_mask(rect.maps[1], w, h).to(device)
+            if not uncalibrated:
+                from dataclasses import replace as _replace
+
+                st.rig_cache[key] = (_replace(rect, left=None, right=None), left_content, right_content)
         left, right = rect.left.to(device), rect.right.to(device)
         info["alpha"] = st.alpha
         info["padding_percent"] = 100.0 * (1.0 - float(left_content.float().mean()))
@@ -449,8 +532,8 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
 
 def build_parser() -> OneLineParser:
     p = OneLineParser(prog=PROG, description="Disparity, depth and a point cloud from a stereo pair (or a batch).")
-    p.add_argument("left", help="left image, folder of left images, or a quoted glob")
-    p.add_argument("right", help="right image, folder of right images, or a quoted glob")
+    p.add_argument("left", help="left image, folder of left images, a quoted glob, or a video file")
+    p.add_argument("right", help="right image, folder of right images, a quoted glob, or a video file")
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder (must not exist without --overwrite)")
     p.add_argument("--method", default=None, help="registered matcher (default: the best available)")
     p.add_argument("--max-disp", type=int, default=None, help="disparity range (default: automatic)")
@@ -611,7 +694,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             except (*USER_ERRORS, ImportError, RuntimeError, MemoryError) as e:
                 if not batch:
                     raise
-                fail(PROG, f"{pair.left.name}: {e}", 1)
+                fail(PROG, f"{pair.left.name if pair.frame is None else pair.name}: {e}", 1)
                 failures.append(pair.name)
                 shutil.rmtree(pair_dir, ignore_errors=True)
         if len(failures) == len(pairs):
@@ -628,6 +711,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if isinstance(e, RuntimeError):  # the method itself failed (e.g. out of memory)
             return fail(PROG, f"--method {method}: {e}", 1)
         raise
+    finally:
+        VIDEO_FRAMES.close()
     if failures:
         return 1
     return 0

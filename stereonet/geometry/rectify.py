@@ -393,6 +393,7 @@ def rectify_calibrated(
     alpha: float = 1.0,
     output_size: tuple[int, int] | None = None,
     method: str = "kornia",
+    prepared: Rectification | None = None,
 ) -> Rectification:
     """Rectify a calibrated pair: :func:`stereo_rectify` (``method`` "kornia" = ours, "opencv" =
     ``cv2.stereoRectify``), then inverse-map both images: kornia ``warp_perspective`` by ``H1``/``H2`` when
@@ -405,21 +406,32 @@ def rectify_calibrated(
             ``image_size`` is None the images' size is used.
         alpha: 1 keeps every source pixel in view, 0 shows only the region both images cover (OpenCV's alpha).
         output_size: ``(H', W')`` of the rectified images (default: the input size).
+        prepared: the result of an earlier call for the same rig and image size: its geometry and maps are
+            reused and only the images are warped (a fixed rig's frames; ``calib``, ``alpha`` and ``method``
+            are then ignored).
 
     Returns:
         :class:`Rectification`; ``.calib`` is the rectified rig (R = I, t = (-B, 0, 0), shared K).
     """
     left, right = check_image_pair(left, right)
     _, _, h, w = left.shape
-    calib = _check_calib_for(calib, w, h)
-    if calib.image_size is None:
-        calib = replace(calib, image_size=(w, h))
-    rect = stereo_rectify(calib, alpha=alpha, output_size=output_size, method=method)
     out_h, out_w = _output_size(output_size, h, w)
-    maps = (
-        rectification_maps(rect.H1, out_h, out_w, calib.K1, calib.dist1, left.dtype),
-        rectification_maps(rect.H2, out_h, out_w, calib.K2, calib.dist2, left.dtype),
-    )
+    if prepared is not None:  # a fixed rig: the geometry and maps of an earlier pair, only the warp is new
+        if prepared.maps is None or prepared.original is None:
+            raise StereoInputError("prepared: expected the Rectification of an earlier rectify_calibrated call")
+        if tuple(prepared.maps[0].shape[:2]) != (out_h, out_w) or prepared.original.image_size != (w, h):
+            raise StereoInputError(f"prepared: made for {prepared.original.image_size} -> "
+                                   f"{tuple(prepared.maps[0].shape[:2])}, got {w}x{h} -> {(out_h, out_w)}")
+        rect, calib, maps = replace(prepared, left=None, right=None), prepared.original, prepared.maps
+    else:
+        calib = _check_calib_for(calib, w, h)
+        if calib.image_size is None:
+            calib = replace(calib, image_size=(w, h))
+        rect = stereo_rectify(calib, alpha=alpha, output_size=output_size, method=method)
+        maps = (
+            rectification_maps(rect.H1, out_h, out_w, calib.K1, calib.dist1, left.dtype),
+            rectification_maps(rect.H2, out_h, out_w, calib.K2, calib.dist2, left.dtype),
+        )
     distorted = (_has_distortion(calib.dist1), _has_distortion(calib.dist2))
     rect.left, rect.right = _warp_pair(left, right, rect.H1, rect.H2, maps, distorted, (out_h, out_w))
     rect.maps = maps

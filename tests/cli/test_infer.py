@@ -480,3 +480,77 @@ def test_an_internal_error_is_a_traceback_not_exit_2(pair_files, tmp_path, capsy
     monkeypatch.setitem(matchers._REGISTRY, "buggy-test", matchers.MatcherSpec("buggy-test", bad_input, "classical", "x"))
     code, err = run_main(capsys, *pair_files, "-o", tmp_path / "out2", "--method", "buggy-test")
     assert code == 2 and "max_disp" in one_line_error(err)
+
+
+def _unrectified_rig(tmp_path: Path, count: int) -> list[Path]:
+    gen = tmp_path / "gen"
+    subprocess.run([sys.executable, "-m", "data_gen", "--out", str(gen), "--count", str(count), "--seed", "3",
+                    "--unrectified", "--height", "96", "--width", "192", "--no-progress"], check=True,
+                   capture_output=True)
+    return sorted(p for p in gen.iterdir() if p.is_dir())
+
+
+def test_fixed_rig_batch_computes_the_rectification_once(tmp_path, capsys, monkeypatch):
+    """Three frames of one calibrated rig (folders): the maps are made for the first pair only and reused,
+    and the results equal those of three single runs."""
+    import shutil as sh
+
+    from stereonet import geometry
+    from stereonet.io import read_disparity
+
+    scenes = _unrectified_rig(tmp_path, 3)
+    calib = scenes[0] / "calib.yaml"  # one --calib for every frame, as for a fixed rig
+    for side, name in (("L", "im0.png"), ("R", "im1.png")):
+        (tmp_path / side).mkdir()
+        for i, sc in enumerate(scenes):
+            sh.copy(sc / name, tmp_path / side / f"f{i}.png")
+    calls = []
+    real_maps = geometry.rectify.rectification_maps
+    monkeypatch.setattr(geometry.rectify, "rectification_maps", lambda *a, **k: calls.append(1) or real_maps(*a, **k))
+    common = ["--calib", calib, "--method", "bm-sad", "--max-disp", "48"]
+    code, err = run_main(capsys, tmp_path / "L", tmp_path / "R", "-o", tmp_path / "batch", *common)
+    assert code == 0, err
+    assert len(calls) == 2  # left and right maps, once for the batch
+    infos = [json.loads((tmp_path / "batch" / f"f{i}" / "info.json").read_text()) for i in range(3)]
+    assert [i["rectification_maps"] for i in infos] == ["computed"] + ["reused (fixed rig, computed once)"] * 2
+    code, err = run_main(capsys, tmp_path / "L" / "f2.png", tmp_path / "R" / "f2.png", "-o", tmp_path / "one", *common)
+    assert code == 0, err
+    a, va = read_disparity(tmp_path / "batch" / "f2" / "disparity.pfm")
+    b, vb = read_disparity(tmp_path / "one" / "disparity.pfm")
+    assert np.array_equal(va, vb) and np.array_equal(a[va], b[vb])
+
+
+def test_two_videos_are_processed_frame_by_frame(tmp_path, capsys):
+    """LEFT/RIGHT as two video files: one output folder per frame, with a progress bar; a frame-count
+    mismatch or an undecodable video is one line, exit 2."""
+    frames = [textured_pair(seed) for seed in range(3)]
+    paths = {}
+    for k, side in enumerate(("left", "right")):
+        path = tmp_path / f"{side}.avi"
+        vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 5, (160, 80))
+        assert vw.isOpened()
+        for pair in frames:
+            vw.write(pair[k])
+        vw.release()
+        paths[side] = path
+    code, err = run_main(capsys, paths["left"], paths["right"], "-o", tmp_path / "out", "--method", "bm-sad",
+                         "--max-disp", "16", "--calib", write_calib(tmp_path / "calib.txt"))
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["frame_000000", "frame_000001", "frame_000002"]
+    from stereonet.io import read_disparity
+
+    for i in range(3):
+        disp, valid = read_disparity(tmp_path / "out" / f"frame_{i:06d}" / "disparity.pfm")
+        assert valid.mean() > 0.5 and abs(np.median(disp[valid]) - SHIFT) < 0.5  # the constant shift, per frame
+    short = tmp_path / "short.avi"
+    vw = cv2.VideoWriter(str(short), cv2.VideoWriter_fourcc(*"MJPG"), 5, (160, 80))
+    vw.write(frames[0][1])
+    vw.release()
+    code, err = run_main(capsys, paths["left"], short, "-o", tmp_path / "bad")
+    assert code == 2 and "frames" in one_line_error(err) and not (tmp_path / "bad").exists()
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes(b"not a video at all")
+    code, err = run_main(capsys, paths["left"], broken, "-o", tmp_path / "bad")
+    assert code == 2 and "RIGHT" in one_line_error(err)
+    code, err = run_main(capsys, paths["left"], tmp_path / "calib.txt", "-o", tmp_path / "bad")
+    assert code == 2 and "video" in one_line_error(err)
