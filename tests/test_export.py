@@ -237,6 +237,10 @@ def test_infer_backend_onnx_reproduces_torch(cones, onnx_files, tmp_path, capsys
     assert torch.equal(torch.isfinite(a), torch.isfinite(b))
     finite = torch.isfinite(a)
     assert float((a - b).abs()[finite].max()) <= TOL_PX
+    import json
+
+    assert [json.loads((tmp_path / d / "info.json").read_text())["backend"] for d in ("torch", "onnx")] == \
+        ["torch", "onnx"]
 
     bad = {  # one line, exit 2, nothing written
         "classical": (["--method", "sgm", "--backend", "onnx"], "--backend onnx: method 'sgm' is classical"),

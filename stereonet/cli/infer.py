@@ -353,7 +353,8 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
 
     st = settings or Settings(fill=fill)
     left, right = read_pair(pair, device)
-    info: dict = {"left": str(pair.left), "right": str(pair.right), "method": method, "rectified": None,
+    info: dict = {"left": str(pair.left), "right": str(pair.right), "method": method,
+                  "backend": options.get("backend", "torch"), "frame": pair.frame, "rectified": None,
                   "units": {"disparity": "px of the images processed (after --scale)", "confidence": "1 (0..1)"},
                   "warnings": []}
     if calib is not None:
