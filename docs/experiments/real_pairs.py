@@ -10,7 +10,7 @@ from stereonet.matchers import register
 methods, labels = [], []
 for arg in sys.argv[1].split(","):
     label, _, rest = arg.partition("=")
-    name, _, ckpt = rest.partition("@")
+    name, _, ckpt = (rest or label).partition("@")
     if ckpt:
         fn = matchers.get_matcher(name, checkpoint=ckpt)
         register(label, kind="learned", description="exp")(lambda l, r, m, fn=fn: fn(l, r, m))
