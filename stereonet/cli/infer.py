@@ -256,6 +256,7 @@ class Settings:
     alpha: float = 1.0
     unit: str | None = None  # unit of the calibration's baseline; None = unknown
     cloud_frame: str = "rectified"
+    output_scale: float = 1.0  # the matcher's output grid / the processed images (SMD's continuous head)
     # a fixed rig's rectification (geometry, maps, content masks), computed for the first pair of a batch
     rig_cache: dict = field(default_factory=dict)
 
@@ -268,14 +269,20 @@ def scale_pair(left: torch.Tensor, right: torch.Tensor, calib, scale: float):
     h, w = left.shape[-2:]
     size = (max(8, round(h * scale)), max(8, round(w * scale)))
     left, right = F.interpolate(left, size=size, mode="area"), F.interpolate(right, size=size, mode="area")
-    if calib is not None:
-        from dataclasses import replace
+    return left, right, resize_calibration(calib, (w, h), (size[1], size[0]))
 
-        sx, sy = size[1] / w, size[0] / h
-        S = torch.tensor([[sx, 0.0, (sx - 1) / 2], [0.0, sy, (sy - 1) / 2], [0.0, 0.0, 1.0]], dtype=torch.float64)
-        calib = replace(calib, K1=S @ calib.K1, K2=S @ calib.K2, image_size=(size[1], size[0]),
-                        doffs=calib.doffs * sx, ndisp=None if not calib.ndisp else math.ceil(calib.ndisp * sx))
-    return left, right, calib
+
+def resize_calibration(calib, size: tuple[int, int], new_size: tuple[int, int]):
+    """The calibration of images resampled from ``size`` to ``new_size`` (both (W, H)); pixel centres map as
+    ``x' = (x + 0.5) s - 0.5``, distortion (normalised coordinates) stays. None stays None."""
+    if calib is None:
+        return None
+    from dataclasses import replace
+
+    sx, sy = new_size[0] / size[0], new_size[1] / size[1]
+    S = torch.tensor([[sx, 0.0, (sx - 1) / 2], [0.0, sy, (sy - 1) / 2], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    return replace(calib, K1=S @ calib.K1, K2=S @ calib.K2, image_size=tuple(new_size), doffs=calib.doffs * sx,
+                   ndisp=None if not calib.ndisp else math.ceil(calib.ndisp * sx))
 
 
 def shift_right(right: torch.Tensor, content: torch.Tensor, min_disp: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -463,6 +470,21 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         raise MemoryError(f"out of memory matching {width}x{left.shape[-2]} px over {max_disp - min_disp + 1} "
                           "disparities: pass --scale 0.5 (or smaller) or a smaller --max-disp") from None
     info["seconds"] = clock.seconds
+    grid = out.disparity.shape[-2:]
+    sx = grid[-1] / left.shape[-1]
+    if tuple(grid) != tuple(left.shape[-2:]):  # --output-scale: the head answered on a finer (or coarser) grid
+        import torch.nn.functional as F
+
+        def nearest(mask):
+            return F.interpolate(mask[None, None].float(), size=tuple(grid), mode="nearest")[0, 0] > 0.5
+
+        left_content, right_content = nearest(left_content), nearest(right_content)
+        colours = F.interpolate(colours, size=tuple(grid), mode="bilinear", align_corners=False)
+        depth_calib = resize_calibration(depth_calib, (left.shape[-1], left.shape[-2]), (grid[-1], grid[-2]))
+        info["output_scale"] = st.output_scale
+        info["output_size"] = [int(grid[-1]), int(grid[-2])]
+        info["units"]["disparity"] = "px of the output grid (--output-scale x the images processed)"
+    min_disp_out = min_disp * sx
     # padding (no source content) is never an answer, before or after filling
     content = content_valid(out.disparity, left_content, right_content)
     padded = not bool(content.all())
@@ -480,16 +502,16 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
             out.valid = out.valid & content
     if mirror:
         out = mirror_output(out)
-    disparity = out.disparity + min_disp if min_disp else out.disparity
+    disparity = out.disparity + min_disp_out if min_disp else out.disparity
     disp, valid = disparity[0, 0].float().cpu(), out.valid[0, 0].cpu()
     info["density"] = 100.0 * float(valid.float().mean())
     if min_disp < 0:  # negative disparities are answers here: plain PFM, inf where invalid
         write_pfm(out_dir / "disparity.pfm", torch.where(valid, disp, torch.full_like(disp, math.inf)).numpy())
     else:
         write_disparity_pfm(out_dir / "disparity.pfm", disp, valid)
-    viz.save_png(out_dir / "disparity.png", viz.colorize_disparity(disp.numpy() - min_disp, max_disp - min_disp,
-                                                                   valid.numpy()))
-    info["disparity_png_scale_px"] = [min_disp, int(max_disp)]
+    viz.save_png(out_dir / "disparity.png", viz.colorize_disparity(disp.numpy() - min_disp_out,
+                                                                   (max_disp - min_disp) * sx, valid.numpy()))
+    info["disparity_png_scale_px"] = [min_disp_out, max_disp * sx]
     if confidence is not None:
         conf = torch.where(out.valid, confidence.float(), torch.zeros_like(confidence.float()))[0, 0].cpu()
         write_disparity_pfm(out_dir / "confidence.pfm", conf.clamp(0, 1))
@@ -555,6 +577,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar in batch mode")
     p.add_argument("--scale", type=float, default=1.0,
                    help="downscale both images by S (0 < S <= 1) first; outputs are for the scaled images")
+    p.add_argument("--output-scale", type=float, default=1.0,
+                   help="answer on a grid S times the processed images (0.25 <= S <= 4), for methods with a "
+                        "continuous output head (smd); disparity then in pixels of that grid")
     p.add_argument("--min-disp", type=int, default=0,
                    help="smallest disparity searched (negative for rigs with converging cameras; default 0)")
     p.add_argument("--alpha", type=float, default=1.0,
@@ -607,6 +632,8 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
         raise StereoInputError(f"--max-disp: expected a positive integer, got {args.max_disp}")
     if not 0 < args.scale <= 1:
         raise StereoInputError(f"--scale: expected 0 < S <= 1, got {args.scale}")
+    if not 0.25 <= args.output_scale <= 4:
+        raise StereoInputError(f"--output-scale: expected 0.25 <= S <= 4, got {args.output_scale}")
     if not 0 <= args.alpha <= 1:
         raise StereoInputError(f"--alpha: expected 0 <= A <= 1, got {args.alpha}")
     if args.max_disp is not None and args.min_disp >= args.max_disp:
@@ -628,6 +655,13 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
         options["checkpoint"] = str(args.checkpoint)
     elif spec.needs_weights and "onnx_model" not in options and not weights_available(method):
         raise FileNotFoundError(f"--method {method}: its weights are missing (pass --checkpoint CKPT)")
+    if args.output_scale != 1.0:
+        import inspect
+
+        if "upsample" not in inspect.signature(spec.fn).parameters:
+            raise StereoInputError(f"--output-scale: method {method!r} answers on the input grid only; use a method "
+                                   "with a continuous output head (smd)")
+        options["upsample"] = float(args.output_scale)
     calib = None
     if args.calib is not None:
         from stereonet.calibration import read_calibration
@@ -681,7 +715,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     failures: list[str] = []
     settings = Settings(fill=args.fill, scale=args.scale, min_disp=args.min_disp, alpha=args.alpha, unit=args.unit,
-                        cloud_frame=args.cloud_frame)
+                        cloud_frame=args.cloud_frame, output_scale=args.output_scale)
     try:
         from tqdm import tqdm
 

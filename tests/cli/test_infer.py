@@ -554,3 +554,39 @@ def test_two_videos_are_processed_frame_by_frame(tmp_path, capsys):
     assert code == 2 and "RIGHT" in one_line_error(err)
     code, err = run_main(capsys, paths["left"], tmp_path / "calib.txt", "-o", tmp_path / "bad")
     assert code == 2 and "video" in one_line_error(err)
+
+
+def test_output_scale_queries_the_smd_head_on_a_finer_grid(tmp_path, capsys):
+    """--output-scale 2 with smd: the maps come out at twice the size, disparities in pixels of that grid
+    (about twice the 1x run's), depth from the correspondingly scaled calibration; a method without a
+    continuous head refuses the option in one line."""
+    from stereonet import matchers
+    from stereonet.cli.common import weights_available
+    from stereonet.io import read_disparity, read_image, write_image
+
+    if "smd" not in matchers.available() or not weights_available("smd"):
+        pytest.skip("smd weights are not installed")
+    import torch.nn.functional as F
+
+    cones = REPO / "stereonet" / "data" / "bundled" / "middlebury2003" / "cones"
+    for name in ("im2.png", "im6.png"):
+        img = F.interpolate(read_image(cones / name), size=(94, 112), mode="area")
+        write_image(tmp_path / name, img)
+    common = [tmp_path / "im2.png", tmp_path / "im6.png", "--method", "smd", "--max-disp", "24",
+              "--calib", write_calib(tmp_path / "calib.txt", w=112, h=94, ndisp=24)]
+    code, err = run_main(capsys, *common, "-o", tmp_path / "x1")
+    assert code == 0, err
+    code, err = run_main(capsys, *common, "-o", tmp_path / "x2", "--output-scale", "2")
+    assert code == 0, err
+    d1, v1 = read_disparity(tmp_path / "x1" / "disparity.pfm")
+    d2, v2 = read_disparity(tmp_path / "x2" / "disparity.pfm")
+    assert d1.shape == (94, 112) and d2.shape == (188, 224)
+    ratio = np.median(d2[v2]) / np.median(d1[v1])
+    assert 1.8 < ratio < 2.2, ratio
+    info = json.loads((tmp_path / "x2" / "info.json").read_text())
+    assert info["output_scale"] == 2.0 and info["output_size"] == [224, 188]
+    z1, h1 = read_disparity(tmp_path / "x1" / "depth.pfm")
+    z2, h2 = read_disparity(tmp_path / "x2" / "depth.pfm")
+    assert abs(np.median(z2[h2]) / np.median(z1[h1]) - 1) < 0.1  # the same scene depth at either scale
+    code, err = run_main(capsys, *common[:2], "--method", "sgm", "-o", tmp_path / "bad", "--output-scale", "2")
+    assert code == 2 and "--output-scale" in one_line_error(err)
