@@ -130,7 +130,7 @@ def test_backend_errors_name_the_argument(cones, onnx_files, threads):
         (dict(backend="tensorrt"), "backend:"),
         (dict(onnx_model=str(onnx_files["dispnet"])), "onnx_model: only used with backend='onnx'"),
         (dict(backend="onnx", onnx_model=str(onnx_files["siamese"])), "onnx_model:"),  # another network
-        (dict(backend="onnx", onnx_model=str(onnx_files["dispnet"]), checkpoint="weights/dispnet.pt"), "checkpoint:"),
+        (dict(backend="onnx", onnx_model=str(onnx_files["dispnet"]), checkpoint="stereonet/weights/dispnet.pt"), "checkpoint:"),
     ]
     for options, message in cases:
         with pytest.raises(StereoInputError, match=message):
@@ -188,7 +188,7 @@ def _bad_cases(tmp_path: Path) -> dict[str, tuple[list[str], str]]:
         "missing checkpoint": (["--method", "dispnet", "-o", o, "--checkpoint", str(tmp_path / "x.pt")],
                                "--checkpoint: no such file"),
         "checkpoint of another model": (["--method", "dispnet", "-o", o, "--checkpoint",
-                                         str(REPO / "weights" / "smd.pt")], "--checkpoint: expected a 'dispnet'"),
+                                         str(REPO / "stereonet" / "weights" / "smd.pt")], "--checkpoint: expected a 'dispnet'"),
         "under a file": (["--method", "siamese", "-o", str(a_file / "m.onnx")], "-o: cannot write"),
         "a folder": (["--method", "siamese", "-o", str(tmp_path)], "-o:"),
         "exists": (["--method", "siamese", "-o", str(existing)], "-o: .* already exists"),

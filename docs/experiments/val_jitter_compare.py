@@ -5,7 +5,7 @@ Selection rule, fixed before the jitter run finished: between runs, the weights 
 *jittered* set (fixed offsets -1..1 row per pair) are shipped, because every real rig's rectification
 leaves such errors; the clean set is reported beside it.
 
-    python docs/experiments/val_jitter_compare.py weights/siamese.pt [OTHER.pt ...]
+    python docs/experiments/val_jitter_compare.py stereonet/weights/siamese.pt [OTHER.pt ...]
 """
 import sys
 

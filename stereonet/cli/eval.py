@@ -84,7 +84,7 @@ def parse_methods(text: str, skipped: list[str] | None = None) -> list[str]:
             chosen = [matchers.spec(n).name]
             if not weights_available(n):
                 raise FileNotFoundError(f"--methods: {n} needs trained weights and they are missing "
-                                        "(see weights/README.md, or train them with train.py)")
+                                        "(see stereonet/weights/README.md, or train them with train.py)")
         out += [m for m in chosen if m not in out]
     return out
 

@@ -1,6 +1,6 @@
 """Learned matchers in the registry: ``siamese``, ``siamese-sgm``, ``dispnet``, ``smd``.
 
-Each loads its network from ``weights/<name>.pt`` (or ``.ckpt``) the first time it runs (cached per file);
+Each loads its network from ``stereonet/weights/<name>.pt`` (or ``.ckpt``) the first time it runs (cached per file);
 ``checkpoint=PATH`` overrides. Missing files, checkpoints of another model and tensors of the wrong shape
 raise errors that name the file (see :mod:`stereonet.models.weights`). No Lightning import here.
 

@@ -1,7 +1,7 @@
 """Model files: build a network from its name and config, load/save weights with clear errors.
 
 Two formats are read:
-  * slim weight files (``weights/<name>.pt``): ``{"format": FORMAT, "model": name, "config": {...},
+  * slim weight files (``stereonet/weights/<name>.pt``): ``{"format": FORMAT, "model": name, "config": {...},
     "state_dict": {...}}`` written by :func:`save_weights` (or ``python -m stereonet.training.export``);
   * Lightning checkpoints (``*.ckpt``) written by ``train.py``: the LightningModule stores the same
     ``{"model", "config"}`` under ``checkpoint["stereonet_model"]`` and the network's tensors under
@@ -30,9 +30,14 @@ WEIGHTS_DIR_ENV = "STEREONET_WEIGHTS_DIR"
 
 
 def weights_dir() -> Path:
-    """Folder of the shipped weights: ``$STEREONET_WEIGHTS_DIR`` or ``weights/`` beside the package."""
+    """Folder of the shipped weights: ``$STEREONET_WEIGHTS_DIR``, else the package data folder
+    ``stereonet/weights`` (found with :mod:`importlib.resources`, so an installed wheel has them too)."""
     env = os.environ.get(WEIGHTS_DIR_ENV)
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "weights"
+    if env:
+        return Path(env)
+    from importlib.resources import files
+
+    return Path(str(files("stereonet") / "weights"))
 
 
 def default_weights_path(model: str) -> Path:

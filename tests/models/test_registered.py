@@ -80,7 +80,7 @@ def test_siamese_census_sgm_mixes_the_learned_cost_into_sgm():
     from stereonet.models.registered import weights_available
 
     if not weights_available("siamese-census-sgm"):
-        pytest.skip("weights/siamese.pt is not present")
+        pytest.skip("stereonet/weights/siamese.pt is not present")
     g = torch.Generator().manual_seed(0)
     big = torch.rand(1, 3, 40, 110, generator=g)
     left, right = big[..., 10:100].contiguous(), big[..., 16:106].contiguous()  # disparity 6 everywhere
