@@ -65,15 +65,27 @@ class NetworkGraph(nn.Module):
         self.stride: int = int(getattr(net, "stride", 1))
         self.dtype: torch.dtype = next(net.parameters()).dtype
 
+    def _net_on(self, device: torch.device) -> nn.Module:
+        """The network on ``device`` (the loaded one lives on the CPU; other devices get one copy each)."""
+        if next(self.net.parameters()).device == device:
+            return self.net
+        copies = self.__dict__.setdefault("_copies", {})
+        if device not in copies:
+            import copy
+
+            copies[device] = copy.deepcopy(self.net).to(device)
+        return copies[device]
+
     def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        net = self._net_on(inputs[0].device)  # follow the input's device, as every matcher does
         if self.network == "siamese":
             (images,) = inputs
-            return (self.net(images),)
+            return (net(images),)
         if self.network == "dispnet":
             left, right = inputs
-            return (self.net(left, right).disparity,)
+            return (net(left, right).disparity,)
         left, right, grid = inputs
-        mix = self.net.query(self.net.backbone(left, right), grid)
+        mix = net.query(net.backbone(left, right), grid)
         return mix.mu1, mix.mu2, mix.b1, mix.b2, mix.pi
 
 
