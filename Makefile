@@ -33,7 +33,7 @@ test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
 
 bench: $(STAMP)
-	$(BIN)/python -m stereonet.bench
+	$(BIN)/python scripts/bench.py
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .ruff_cache

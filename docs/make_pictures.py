@@ -83,7 +83,12 @@ def render_cloud(ply: Path, png: Path, max_points: int = 60000) -> None:
 
 
 def main() -> int:
-    from stereonet.bench import shrink_copy
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("stereonet_bench_script", REPO / "scripts" / "bench.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    shrink_copy = bench.shrink_copy
     from stereonet.io import read_array, write_image
 
     OUT.mkdir(parents=True, exist_ok=True)

@@ -3,7 +3,7 @@
     python scripts/bench_global.py [--methods dp,bp,graphcut,opencv-sgbm] [--data middlebury]
                                    [--repeat 1] [--json FILE]
 
-Runs :func:`stereonet.cli.eval.run_evaluation` with the shared filling of ``eval.py --fill`` (dense
+Runs :func:`stereonet.evaluation.run_evaluation` with the shared filling of ``eval.py --fill`` (dense
 comparison; raw bad-2 and density before filling are reported too) and prints, per method, the **median
 over pairs** of bad-2 (all pixels with ground truth), wall seconds per pair with its ratio to opencv-sgbm
 (measured under the same load, so comparable on a shared machine) and peak MiB.
@@ -19,7 +19,7 @@ import json
 import statistics
 from pathlib import Path
 
-from stereonet.cli.eval import expand_data_specs, run_evaluation
+from stereonet.evaluation import expand_data_specs, run_evaluation
 from stereonet.io.atomic import atomic_write_text
 
 REPO = Path(__file__).resolve().parents[1]

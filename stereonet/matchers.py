@@ -94,3 +94,25 @@ def get_matcher(name: str, **options) -> MatcherFn:
 def match(name: str, left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
     """Run the matcher ``name`` once."""
     return get_matcher(name, **options)(left, right, max_disp)
+
+
+def weights_available(name: str) -> bool:
+    """Whether matcher ``name`` can run without an explicit checkpoint (always True when it needs none).
+
+    Asks ``stereonet.models.registered.weights_available`` when the learned family provides it, else looks
+    for the shipped file of the matcher's network (``siamese-sgm`` uses ``siamese``'s weights).
+    """
+    if not spec(name).needs_weights:
+        return True
+    try:
+        from stereonet.models import registered
+        from stereonet.models.weights import default_weights_path
+    except ImportError:
+        return False
+    probe = getattr(registered, "weights_available", None)
+    if probe is not None:
+        try:
+            return bool(probe(name))
+        except (KeyError, ValueError):  # a name the learned family does not know: look for the file
+            pass
+    return default_weights_path(name.split("-")[0]).is_file()

@@ -40,7 +40,7 @@ def warm_up(verbose: bool = True) -> list[tuple[str, float]]:
         step(name, lambda n=name: matchers.match(n, left, right, 16))
 
     def fill():
-        from stereonet.cli.eval import apply_fill
+        from stereonet.evaluation import apply_fill
 
         out = matchers.match("bm-sad", left, right, 16)
         apply_fill(out)

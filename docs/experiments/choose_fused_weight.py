@@ -3,9 +3,9 @@ import functools
 import sys
 
 import data_gen
-from stereonet.cli.eval import format_table, run_evaluation
 from stereonet.cost.volume import build_cost_volume_checked
 from stereonet.data import _SyntheticItems
+from stereonet.evaluation import format_table, run_evaluation
 from stereonet.matchers import register
 from stereonet.models import registered as reg
 from stereonet.optimize import registered_local as rl

@@ -4,7 +4,7 @@ import statistics
 import sys
 
 from stereonet import matchers
-from stereonet.cli.eval import expand_data_specs, format_table, run_evaluation
+from stereonet.evaluation import expand_data_specs, format_table, run_evaluation
 from stereonet.matchers import register
 
 methods, labels = [], []

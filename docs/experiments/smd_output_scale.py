@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 
 from stereonet import matchers
-from stereonet.cli.eval import expand_data_specs, run_evaluation
+from stereonet.evaluation import expand_data_specs, run_evaluation
 from stereonet.matchers import register
 from stereonet.types import StereoOutput
 

@@ -494,7 +494,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     if confidence is None and out.uncertainty is not None:
         confidence = torch.exp(-out.uncertainty.float())
     if st.fill:
-        from stereonet.cli.eval import apply_fill
+        from stereonet.evaluation import apply_fill
 
         info["density_before_fill"] = 100.0 * float(out.valid.float().mean())
         out = apply_fill(out)

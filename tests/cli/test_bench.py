@@ -1,11 +1,14 @@
-"""stereonet.bench: BENCHMARKS.md with median tables, ratios to opencv-sgbm and plots, on a tiny fake set."""
+"""scripts/bench.py (make bench): BENCHMARKS.md with median tables, ratios to opencv-sgbm and plots, on a tiny fake set."""
 
 from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
 
-from stereonet import bench
+REPO = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location("stereonet_bench_script", REPO / "scripts" / "bench.py")
+bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench)
 
 HERE = Path(__file__).resolve().parent
 
@@ -66,8 +69,8 @@ def test_bench_merge_adds_methods(tmp_path, monkeypatch):
 
 
 def test_pairs_line_counts_each_datasets_pairs_once():
-    from stereonet.bench import dataset_pairs, pairs_line
-    from stereonet.cli.eval import Evaluation, PairResult
+    dataset_pairs, pairs_line = bench.dataset_pairs, bench.pairs_line
+    from stereonet.evaluation import Evaluation, PairResult
 
     def r(method, dataset, pair):
         return PairResult(method, dataset, pair, {"bad2": 1.0}, {"bad2": 1.0}, 0.1, 1.0)

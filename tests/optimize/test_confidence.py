@@ -53,8 +53,8 @@ def test_bad_input():
 
 
 def test_sgm_confidence_ranks_its_errors():
-    from stereonet.cli.eval import apply_fill
     from stereonet.data import load_dataset
+    from stereonet.evaluation import apply_fill
     from stereonet.matchers import match
     from stereonet.metrics import sparsification_ause
 
