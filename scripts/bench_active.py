@@ -24,20 +24,19 @@ from pathlib import Path
 
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from stereonet.active import demo
+from stereonet.active.datagen_bridge import datagen_active_pair
+from stereonet.active.icp import align_scans
+from stereonet.active.render import render_range_scan
+from stereonet.active.scene import PinholeCamera
+from stereonet.active.scenes import make_scene
+from stereonet.active.structured_light import random_dot_pattern
+from stereonet.checks import StereoInputError
+from stereonet.io import atomic_write_bytes, atomic_write_text
+from stereonet.matchers import available, match
+from stereonet.metrics import evaluate
 
-from stereonet.active import demo  # noqa: E402
-from stereonet.active.datagen_bridge import datagen_active_pair  # noqa: E402
-from stereonet.active.icp import align_scans  # noqa: E402
-from stereonet.active.render import render_range_scan  # noqa: E402
-from stereonet.active.scene import PinholeCamera  # noqa: E402
-from stereonet.active.scenes import make_scene  # noqa: E402
-from stereonet.active.structured_light import random_dot_pattern  # noqa: E402
-from stereonet.checks import StereoInputError  # noqa: E402
-from stereonet.io import atomic_write_bytes, atomic_write_text  # noqa: E402
-from stereonet.matchers import available, match  # noqa: E402
-from stereonet.metrics import evaluate  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]  # stereonet itself comes from the (editable) install
 
 MATCHERS = ("opencv-sgbm", "sgm", "bm-census")
 

@@ -28,12 +28,10 @@ from pathlib import Path
 
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+from stereonet.geometry.bench import format_table, rendered_benchmark, rig_benchmark, summarize
+from stereonet.io.atomic import atomic_write_text
 
-from stereonet.geometry.bench import format_table, rendered_benchmark, rig_benchmark, summarize  # noqa: E402
-from stereonet.io.atomic import atomic_write_text  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]  # stereonet itself comes from the (editable) install
 
 
 def main(argv: list[str] | None = None) -> int:
