@@ -257,6 +257,7 @@ class Settings:
     unit: str | None = None  # unit of the calibration's baseline; None = unknown
     cloud_frame: str = "rectified"
     output_scale: float = 1.0  # the matcher's output grid / the processed images (SMD's continuous head)
+    memory_budget: float = 4096.0  # MiB a matcher call may use; larger pairs run in overlapping strips
     # a fixed rig's rectification (geometry, maps, content masks), computed for the first pair of a batch
     rig_cache: dict = field(default_factory=dict)
 
@@ -461,15 +462,21 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         right, right_content = shift_right(right, right_content, min_disp)
 
     fn = matchers.get_matcher(method, **options)
+    from stereonet.tiling import match_with_budget
+
+    tiling: dict = {}
     try:
         with torch.no_grad(), Stopwatch() as clock:
-            out = fn(left, right, int(max_disp - min_disp))
+            out = match_with_budget(fn, left, right, int(max_disp - min_disp), budget_mib=st.memory_budget,
+                                    info=tiling)
     except (MemoryError, RuntimeError) as e:
         if isinstance(e, RuntimeError) and "not enough memory" not in str(e) and "out of memory" not in str(e):
             raise
         raise MemoryError(f"out of memory matching {width}x{left.shape[-2]} px over {max_disp - min_disp + 1} "
                           "disparities: pass --scale 0.5 (or smaller) or a smaller --max-disp") from None
     info["seconds"] = clock.seconds
+    info["memory"] = {"budget_mib": st.memory_budget, "strips": tiling.get("strips", 1),
+                      "rows_per_strip": tiling.get("rows_per_strip")}
     grid = out.disparity.shape[-2:]
     sx = grid[-1] / left.shape[-1]
     if tuple(grid) != tuple(left.shape[-2:]):  # --output-scale: the head answered on a finer (or coarser) grid
@@ -580,6 +587,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--output-scale", type=float, default=1.0,
                    help="answer on a grid S times the processed images (0.25 <= S <= 4), for methods with a "
                         "continuous output head (smd); disparity then in pixels of that grid")
+    p.add_argument("--memory-budget", type=float, default=4096.0, metavar="MIB",
+                   help="extra memory one matcher call may use (default 4096 MiB, for an 8 GB laptop); larger "
+                        "pairs are matched in overlapping strips of rows")
     p.add_argument("--min-disp", type=int, default=0,
                    help="smallest disparity searched (negative for rigs with converging cameras; default 0)")
     p.add_argument("--alpha", type=float, default=1.0,
@@ -632,6 +642,8 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
         raise StereoInputError(f"--max-disp: expected a positive integer, got {args.max_disp}")
     if not 0 < args.scale <= 1:
         raise StereoInputError(f"--scale: expected 0 < S <= 1, got {args.scale}")
+    if not args.memory_budget > 0:
+        raise StereoInputError(f"--memory-budget: expected a positive number of MiB, got {args.memory_budget}")
     if not 0.25 <= args.output_scale <= 4:
         raise StereoInputError(f"--output-scale: expected 0.25 <= S <= 4, got {args.output_scale}")
     if not 0 <= args.alpha <= 1:
@@ -715,7 +727,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     failures: list[str] = []
     settings = Settings(fill=args.fill, scale=args.scale, min_disp=args.min_disp, alpha=args.alpha, unit=args.unit,
-                        cloud_frame=args.cloud_frame, output_scale=args.output_scale)
+                        cloud_frame=args.cloud_frame, output_scale=args.output_scale,
+                        memory_budget=args.memory_budget)
     try:
         from tqdm import tqdm
 

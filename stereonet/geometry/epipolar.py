@@ -5,7 +5,9 @@ Convention: ``x2^T F x1 = 0`` for a point ``x1`` of the first (left) image and i
 ``E = [t]_x R``. F has 7 degrees of freedom (scale fixed to ``||F||_F = 1``, ``det F = 0``), E has 5 (its two
 non-zero singular values are equal; we scale them to 1).
 
-All solvers run in float64 internally and return the input's dtype.
+All solvers run in float64 internally and return the input's dtype. The numerical cores are kornia's
+(:mod:`kornia.geometry.epipolar`); this module adds the input checks, the degeneracy tests, the canonical
+scale/sign of F and E, and arbitrary leading batch dimensions. Robust F (RANSAC/LMedS) and the epipoles are ours.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import math
 from typing import NamedTuple
 
 import torch
+from kornia.geometry import epipolar as kge
 
 from stereonet.checks import StereoInputError
 from stereonet.geometry.camera import DegenerateGeometryError, check_intrinsics, check_points
@@ -44,14 +47,13 @@ _RANK_TOL = {torch.float64: 1e-11, torch.float32: 1e-5, torch.float16: 1e-2, tor
 
 
 def cross_product_matrix(v: torch.Tensor) -> torch.Tensor:
-    """``[v]_x`` :math:`(*, 3, 3)` for ``v`` :math:`(*, 3)`, so that ``[v]_x w = v x w``."""
-    x, y, z = v.unbind(-1)
-    zero = torch.zeros_like(x)
-    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(v.shape[:-1] + (3, 3))
+    """``[v]_x`` :math:`(*, 3, 3)` for ``v`` :math:`(*, 3)`, so that ``[v]_x w = v x w`` (kornia)."""
+    return kge.cross_product_matrix(v)
 
 
-def _homogeneous(points: torch.Tensor) -> torch.Tensor:
-    return torch.cat([points, torch.ones_like(points[..., :1])], dim=-1)
+def _flat(points: torch.Tensor) -> torch.Tensor:
+    """:math:`(*, N, D)` -> :math:`(B, N, D)`, the one batch dimension kornia's solvers take."""
+    return points.reshape((-1,) + points.shape[-2:])
 
 
 def _fix_scale_and_sign(M: torch.Tensor) -> torch.Tensor:
@@ -63,7 +65,8 @@ def _fix_scale_and_sign(M: torch.Tensor) -> torch.Tensor:
 
 
 def normalize_points_hartley(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Hartley normalisation: centroid at the origin, mean distance to it :math:`\\sqrt 2`.
+    """Hartley normalisation: centroid at the origin, mean distance to it :math:`\\sqrt 2`
+    (:func:`kornia.geometry.epipolar.normalize_points`, any leading dimensions).
 
     Args:
         points: :math:`(*, N, 2)`.
@@ -74,22 +77,21 @@ def normalize_points_hartley(points: torch.Tensor) -> tuple[torch.Tensor, torch.
     Raises:
         DegenerateGeometryError: when all points coincide (no scale can be defined).
     """
-    centroid = points.mean(dim=-2, keepdim=True)  # *x1x2
-    centred = points - centroid
-    mean_dist = torch.linalg.vector_norm(centred, dim=-1).mean(dim=-1)  # *
-    if bool((mean_dist <= 1e-12 * (1.0 + centroid.detach().abs().amax())).any()):
+    check_points(points, "points", 2)
+    # kornia's Hartley normalisation with eps = 0 (exact sqrt 2): coincident points are refused below instead
+    x, T = kge.normalize_points(_flat(points), eps=0.0)  # BxNx2, Bx3x3
+    mean_dist = math.sqrt(2.0) / T[:, 0, 0].detach()  # B, 0 when all points coincide
+    centroid = points.detach().mean(dim=-2)
+    if bool((mean_dist <= 1e-12 * (1.0 + centroid.abs().amax())).any()):
         raise DegenerateGeometryError(
             "points: all points coincide; Hartley normalisation needs spread points"
         )
-    scale = math.sqrt(2.0) / mean_dist  # *
-    zero, one = torch.zeros_like(scale), torch.ones_like(scale)
-    cx, cy = centroid[..., 0, 0], centroid[..., 0, 1]
-    T = torch.stack([scale, zero, -scale * cx, zero, scale, -scale * cy, zero, zero, one], -1)
-    return centred * scale[..., None, None], T.reshape(scale.shape + (3, 3))
+    return x.reshape(points.shape), T.reshape(points.shape[:-2] + (3, 3))
 
 
 def _eight_point_system(x1: torch.Tensor, x2: torch.Tensor) -> torch.Tensor:
-    """Rows of the M x 9 system ``A f = 0`` for ``x2^T F x1 = 0`` with ``f`` = F in row-major order."""
+    """Rows of the M x 9 system ``A f = 0`` for ``x2^T F x1 = 0`` with ``f`` = F in row-major order (for the
+    rank test of :func:`_eight_point_core`; kornia solves the same system)."""
     u1, v1 = x1.unbind(-1)
     u2, v2 = x2.unbind(-1)
     one = torch.ones_like(u1)
@@ -97,21 +99,17 @@ def _eight_point_system(x1: torch.Tensor, x2: torch.Tensor) -> torch.Tensor:
 
 
 def _eight_point_core(pts1: torch.Tensor, pts2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The textbook normalized eight-point steps, no input checks (float64).
+    """The normalized eight-point F by :func:`kornia.geometry.epipolar.find_fundamental`, no input checks.
 
-    Returns (F :math:`(*, 3, 3)` canonical scale/sign, rank margin :math:`(*)` = sigma_8 / sigma_1 of A).
+    Returns (F :math:`(*, 3, 3)` canonical scale/sign, rank margin :math:`(*)` = sigma_8 / sigma_1 of the
+    Hartley-normalised system A).
     """
-    x1, T1 = normalize_points_hartley(pts1)  # 1. Hartley normalisation of both point sets
-    x2, T2 = normalize_points_hartley(pts2)
-    A = _eight_point_system(x1, x2)  # 2. the M x 9 system, *xMx9
-    if A.shape[-2] < 9:  # pad with zero rows so a thin SVD still returns all 9 right singular vectors
-        A = torch.cat([A, A.new_zeros(A.shape[:-2] + (9 - A.shape[-2], 9))], dim=-2)
-    _, s, Vh = torch.linalg.svd(A, full_matrices=False)  # 3. SVD: f = right singular vector of sigma_min
-    F_norm = Vh[..., -1, :].reshape(A.shape[:-2] + (3, 3))
-    U, sf, Vfh = torch.linalg.svd(F_norm)  # 4. rank 2: zero the smallest singular value
-    sf = torch.stack([sf[..., 0], sf[..., 1], torch.zeros_like(sf[..., 2])], dim=-1)
-    F_norm = U @ torch.diag_embed(sf) @ Vfh
-    F = T2.transpose(-1, -2) @ F_norm @ T1  # 5. de-normalisation: F = T2^T F_norm T1
+    x1, _ = normalize_points_hartley(pts1)  # raises on coincident points
+    x2, _ = normalize_points_hartley(pts2)
+    with torch.no_grad():
+        s = torch.linalg.svdvals(_eight_point_system(x1, x2))  # *xmin(M,9)
+    F = kge.find_fundamental(_flat(pts1), _flat(pts2), method="8POINT")  # Bx3x3, F[2, 2] = 1
+    F = F.reshape(pts1.shape[:-2] + (3, 3))
     return _fix_scale_and_sign(F), s[..., 7] / s[..., 0].clamp_min(1e-300)
 
 
@@ -120,8 +118,9 @@ def fundamental_8point(pts1: torch.Tensor, pts2: torch.Tensor) -> torch.Tensor:
 
     Steps: Hartley normalisation of each image's points, the M x 9 linear system, its SVD, rank-2
     enforcement by zeroing F's smallest singular value, de-normalisation ``F = T2^T F_n T1``; F is returned
-    with ``||F||_F = 1`` and its largest-magnitude entry positive. Differentiable (SVD) for M >= 8 points in
-    general position.
+    with ``||F||_F = 1`` and its largest-magnitude entry positive. Differentiable for M >= 8 points in
+    general position. The solve is :func:`kornia.geometry.epipolar.find_fundamental` (``"8POINT"``) in float64;
+    kornia's ``F[2, 2] = 1`` scale is replaced by the canonical one.
 
     Args:
         pts1, pts2: matching pixels :math:`(*, M, 2)`, M >= 8.
@@ -159,21 +158,11 @@ def sampson_distance(
         pts1, pts2: :math:`(*, N, 2)`; F :math:`(*, 3, 3)` (broadcast over leading dims).
 
     Returns:
-        :math:`(*, N)`. A correspondence at both epipoles (zero denominator) gets its squared algebraic error
-        divided by 1e-300 instead of a NaN.
+        :math:`(*, N)` (:func:`kornia.geometry.epipolar.sampson_epipolar_distance`; one point set against
+        ``(H, 3, 3)`` models gives :math:`(H, N)`). A correspondence whose two epipolar lines are both
+        degenerate (zero denominator, e.g. at both epipoles) is at distance ``inf``, never NaN.
     """
-    x1, x2 = _homogeneous(pts1), _homogeneous(pts2)
-    if x1.dim() == 2 and F.dim() == 3:  # one point set against H models (RANSAC): two plain matmuls
-        h, n = F.shape[0], x1.shape[0]
-        Fx1 = (F.reshape(h * 3, 3) @ x1.T).reshape(h, 3, n).transpose(1, 2)  # HxNx3
-        Ftx2 = (F.transpose(1, 2).reshape(h * 3, 3) @ x2.T).reshape(h, 3, n).transpose(1, 2)  # HxNx3
-    else:
-        Fx1 = x1 @ F.transpose(-1, -2)  # *xNx3, rows are (F x1)^T
-        Ftx2 = x2 @ F  # *xNx3, rows are (F^T x2)^T
-    algebraic = (x2 * Fx1).sum(-1)
-    denom = Fx1[..., 0] ** 2 + Fx1[..., 1] ** 2 + Ftx2[..., 0] ** 2 + Ftx2[..., 1] ** 2
-    d2 = algebraic**2 / denom.clamp_min(1e-300)
-    return d2 if squared else d2.clamp_min(0).sqrt()
+    return kge.sampson_epipolar_distance(pts1, pts2, F, squared=squared)
 
 
 def epipolar_lines(points: torch.Tensor, F: torch.Tensor, in_image: int = 2) -> torch.Tensor:
@@ -185,13 +174,13 @@ def epipolar_lines(points: torch.Tensor, F: torch.Tensor, in_image: int = 2) -> 
         F: :math:`(*, 3, 3)`.
 
     Returns:
-        lines :math:`(*, N, 3)`.
+        lines :math:`(*, N, 3)` (:func:`kornia.geometry.epipolar.compute_correspond_epilines`; a line with
+        ``a = b = 0`` is left unscaled).
     """
     if in_image not in (1, 2):
         raise StereoInputError(f"in_image: expected 1 or 2, got {in_image!r}")
     M = F if in_image == 2 else F.transpose(-1, -2)
-    lines = _homogeneous(points) @ M.transpose(-1, -2)  # *xNx3
-    return lines / torch.linalg.vector_norm(lines[..., :2], dim=-1, keepdim=True).clamp_min(1e-300)
+    return kge.compute_correspond_epilines(points, M)
 
 
 def epipoles(F: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -210,17 +199,20 @@ def epipoles(F: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 def essential_from_fundamental(F: torch.Tensor, K1: torch.Tensor, K2: torch.Tensor) -> torch.Tensor:
     """``E = K2^T F K1`` projected to the essential manifold (equal singular values, see
-    :func:`project_to_essential`). F :math:`(*, 3, 3)`, K1, K2 :math:`(*, 3, 3)`."""
+    :func:`project_to_essential`). F :math:`(*, 3, 3)`, K1, K2 :math:`(*, 3, 3)`; the product is kornia's."""
     check_intrinsics(K1, "K1")
     check_intrinsics(K2, "K2")
-    return project_to_essential(K2.transpose(-1, -2) @ F @ K1)
+    return project_to_essential(kge.essential_from_fundamental(F, K1, K2))
 
 
 def fundamental_from_essential(E: torch.Tensor, K1: torch.Tensor, K2: torch.Tensor) -> torch.Tensor:
-    """``F = K2^{-T} E K1^{-1}``, canonical scale/sign as :func:`fundamental_8point`."""
+    """``F = K2^{-T} E K1^{-1}`` (kornia), canonical scale/sign as :func:`fundamental_8point`.
+    E, K1, K2 :math:`(*, 3, 3)`, leading dimensions broadcast."""
     check_intrinsics(K1, "K1")
     check_intrinsics(K2, "K2")
-    return _fix_scale_and_sign(torch.linalg.inv(K2).transpose(-1, -2) @ E @ torch.linalg.inv(K1))
+    shape = torch.broadcast_shapes(E.shape[:-2], K1.shape[:-2], K2.shape[:-2]) + (3, 3)
+    F = kge.fundamental_from_essential(E.expand(shape), K1.expand(shape), K2.expand(shape))
+    return _fix_scale_and_sign(F)
 
 
 def essential_from_pose(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
@@ -236,37 +228,29 @@ def fundamental_from_pose(
 
 
 def project_to_essential(E: torch.Tensor) -> torch.Tensor:
-    """Closest essential matrix (Frobenius): ``U diag(1, 1, 0) V^T`` from the SVD of ``E``.
+    """Closest essential matrix (Frobenius): ``U diag(1, 1, 0) V^T`` from the SVD of ``E`` (kornia's
+    projection, rescaled to unit singular values).
 
     Raises:
         DegenerateGeometryError: when E is (numerically) zero, i.e. a pure rotation with t = 0.
     """
-    U, s, Vh = torch.linalg.svd(E)
-    if bool((s[..., 0] <= 1e-12 * E.detach().abs().amax().clamp_min(1e-300)).any()) or bool(
-        (s[..., 0] == 0).any()
-    ):
+    E_k = kge.project_to_essential(E)  # U diag(s, s, 0) V^T, s the mean of E's two largest singular values
+    s = torch.linalg.matrix_norm(E_k) / math.sqrt(2.0)  # *
+    if bool((s.detach() <= 1e-12 * E.detach().abs().amax().clamp_min(1e-300)).any()) or bool((s == 0).any()):
         raise DegenerateGeometryError("E: the essential matrix is zero (pure rotation without translation)")
-    ones = torch.ones_like(s)
-    ones = torch.stack([ones[..., 0], ones[..., 1], torch.zeros_like(ones[..., 2])], -1)
-    return U @ torch.diag_embed(ones) @ Vh
+    return E_k / s[..., None, None]
 
 
 def decompose_essential(E: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The four ``(R, t)`` of an essential matrix (H&Z Result 9.19), ``|t| = 1``.
 
     Returns:
-        (R :math:`(*, 4, 3, 3)`, t :math:`(*, 4, 3)`) in the order (R_a, t), (R_a, -t), (R_b, t), (R_b, -t).
+        (R :math:`(*, 4, 3, 3)`, t :math:`(*, 4, 3)`) in the order (R_a, t), (R_a, -t), (R_b, t), (R_b, -t)
+        with ``R_a = U W V^T``, ``R_b = U W^T V^T``, ``t = u_3``
+        (:func:`kornia.geometry.epipolar.motion_from_essential`).
     """
-    U, _, Vh = torch.linalg.svd(E)
-    # Proper rotations: negating U or V changes only the (irrelevant) sign of E.
-    U = U * torch.where(torch.linalg.det(U) < 0, -1.0, 1.0)[..., None, None]
-    Vh = Vh * torch.where(torch.linalg.det(Vh) < 0, -1.0, 1.0)[..., None, None]
-    W = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=E.dtype, device=E.device)
-    Ra, Rb = U @ W @ Vh, U @ W.T @ Vh
-    t = U[..., :, 2]
-    R4 = torch.stack([Ra, Ra, Rb, Rb], dim=-3)  # *x4x3x3
-    t4 = torch.stack([t, -t, t, -t], dim=-2)  # *x4x3
-    return R4, t4
+    R4, t4 = kge.motion_from_essential(E)  # *x4x3x3, *x4x3x1
+    return R4, t4.squeeze(-1)
 
 
 class PoseEstimate(NamedTuple):
@@ -403,11 +387,12 @@ def fundamental_robust(
         except DegenerateGeometryError:  # a sample of coincident points: redraw
             done += count
             continue
+        ok = (margin > 1e-12) & torch.isfinite(F_h).all(-1).all(-1)  # H, determined samples
         d2 = sampson_distance(p1, p2, F_h)  # HxN
         if method == "ransac":
-            score = -((d2 < threshold**2) & (margin > 1e-12)[:, None]).sum(-1).double()
+            score = -((d2 < threshold**2) & ok[:, None]).sum(-1).double()
         else:
-            score = torch.where(margin > 1e-12, d2.median(-1).values, torch.full_like(margin, math.inf))
+            score = torch.where(ok, d2.median(-1).values, torch.full_like(margin, math.inf))
         k = int(score.argmin())
         if float(score[k]) < best_score:
             best_score, best_F = float(score[k]), F_h[k]

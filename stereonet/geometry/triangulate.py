@@ -2,7 +2,8 @@
 
 Points come out in the first (left) camera's frame; the rig follows :class:`stereonet.types.Calibration`
 (``X_r = R X_l + t``). Both methods are differentiable; neither returns NaN: matches whose rays are
-parallel (a point at infinity) get ``valid = False`` and a finite placeholder.
+parallel (a point at infinity) get ``valid = False`` and a finite placeholder. The DLT is kornia's
+(:func:`kornia.geometry.epipolar.triangulate_points`, SVD solver); the midpoint method is ours (kornia has none).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import torch
+from kornia.geometry.epipolar import triangulate_points
 
 from stereonet.checks import StereoInputError
 from stereonet.geometry.camera import (
@@ -23,33 +25,22 @@ from stereonet.types import Calibration
 
 __all__ = ["Triangulation", "reprojection_error", "triangulate", "triangulate_dlt", "triangulate_midpoint"]
 
-# |w| of the homogeneous DLT solution (unit norm) below which the point is at infinity.
+# |w| of the homogeneous DLT solution (unit norm) below which the point is at infinity; for the Euclidean point
+# X = v / w of a unit 4-vector (v, w) that is |X| > sqrt(1 - tol^2) / tol, i.e. |X| > 1 / tol.
 _INFINITY_TOL = 1e-12
-
-
-def _dehomogenize(X_h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    w = X_h[..., 3:]
-    finite = w.abs() > _INFINITY_TOL
-    w_safe = torch.where(finite, w, torch.ones_like(w))
-    return X_h[..., :3] / w_safe, finite[..., 0]
 
 
 def _dlt(
     P1: torch.Tensor, P2: torch.Tensor, pts1: torch.Tensor, pts2: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    P1, P2 = P1.unsqueeze(-3), P2.unsqueeze(-3)  # *x1x3x4
-    rows = torch.stack(
-        [
-            pts1[..., 0:1] * P1[..., 2, :] - P1[..., 0, :],
-            pts1[..., 1:2] * P1[..., 2, :] - P1[..., 1, :],
-            pts2[..., 0:1] * P2[..., 2, :] - P2[..., 0, :],
-            pts2[..., 1:2] * P2[..., 2, :] - P2[..., 1, :],
-        ],
-        dim=-2,
-    )  # *xNx4x4
-    rows = rows / torch.linalg.vector_norm(rows, dim=-1, keepdim=True).clamp_min(1e-300)  # equilibrate rows
-    _, _, Vh = torch.linalg.svd(rows)
-    return _dehomogenize(Vh[..., -1, :])
+    X = triangulate_points(P1, P2, pts1, pts2, solver="svd")  # *xNx3, NaN at infinity
+    finite = torch.linalg.vector_norm(X, dim=-1) < 1.0 / _INFINITY_TOL  # NaN compares False
+    # placeholder for points at infinity: the unit direction of the ray of pts1, M1^+ x1 (P1 = [M1 | p1])
+    M1_pinv = torch.linalg.pinv(P1[..., :3])  # *x3x3
+    ray = torch.cat([pts1, torch.ones_like(pts1[..., :1])], -1) @ M1_pinv.transpose(-1, -2)  # *xNx3
+    ray = ray / torch.linalg.vector_norm(ray, dim=-1, keepdim=True).clamp_min(1e-300)
+    X = torch.where(finite.unsqueeze(-1), X, ray)
+    return X, finite
 
 
 def triangulate_dlt(
@@ -62,7 +53,7 @@ def triangulate_dlt(
 
     Returns:
         points :math:`(*, N, 3)` in the frame the projection matrices act on. Points at infinity are returned
-        as their direction (finite); use :func:`triangulate` to get the ``valid`` flag.
+        as their direction (finite, the unit ray of ``pts1``); use :func:`triangulate` to get the ``valid`` flag.
     """
     check_points(pts1, "pts1", 2)
     check_points(pts2, "pts2", 2)

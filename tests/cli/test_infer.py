@@ -590,3 +590,12 @@ def test_output_scale_queries_the_smd_head_on_a_finer_grid(tmp_path, capsys):
     assert abs(np.median(z2[h2]) / np.median(z1[h1]) - 1) < 0.1  # the same scene depth at either scale
     code, err = run_main(capsys, *common[:2], "--method", "sgm", "-o", tmp_path / "bad", "--output-scale", "2")
     assert code == 2 and "--output-scale" in one_line_error(err)
+
+
+def test_memory_budget_bad_values_are_one_line(pair_files, tmp_path, capsys):
+    code, err = run_main(capsys, *pair_files, "-o", tmp_path / "a", "--method", "sgm", "--memory-budget", "0")
+    assert code == 2 and "--memory-budget" in one_line_error(err)
+    code, err = run_main(capsys, *pair_files, "-o", tmp_path / "b", "--method", "sgm", "--memory-budget", "0.01")
+    assert code == 2 and "too small" in one_line_error(err) and not (tmp_path / "b").exists()
+    code, err = run_main(capsys, *pair_files, "-o", tmp_path / "c", "--method", "sgm")
+    assert code == 0 and json.loads((tmp_path / "c" / "info.json").read_text())["memory"]["strips"] == 1

@@ -1,0 +1,116 @@
+"""Matching under a memory budget: horizontal strips with overlapping margins, stitched back.
+
+Every matcher's memory grows with ``W x H x D`` (cost volumes, path accumulators, network activations), so
+a large pair can exceed the machine. :func:`match_with_budget` runs a matcher on strips of whole rows whose
+size fits ``budget_mib``: each strip is extended by ``overlap`` rows above and below (context for window
+costs, SGM's vertical and diagonal paths and a network's receptive field) and only its core rows are kept.
+The bytes one row needs are *measured*, not guessed: the matcher runs once on a probe strip under
+:class:`stereonet.measure.PeakMemory`, and the strip height follows from the budget with a safety factor, so
+the rule holds for every method, classical or learned. A budget too small for one strip (the overlap plus a
+minimum core) is a one-line :class:`~stereonet.checks.StereoInputError` naming the budget.
+
+With enough overlap the stitched map equals the untiled one except near the seams of a long-range method
+(SGM's 8 paths see the whole image); the tests and ``docs/experiments`` measure the difference.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import fields, replace
+
+import torch
+
+from stereonet.checks import StereoInputError
+from stereonet.measure import PeakMemory
+from stereonet.types import StereoOutput
+
+DEFAULT_BUDGET_MIB = 4096  # fits an 8 GB laptop beside the rest of the process
+DEFAULT_OVERLAP = 48
+MIN_CORE = 16
+PROBE_ROWS = 32
+SAFETY = 0.7  # share of the budget the planned strips may use (the probe's measurement is a lower bound)
+# Bytes per (pixel x disparity) that no matcher here exceeds (sgm peaks at ~14 on Cones, the networks lower):
+# a pair whose W x H x (D + 1) times this fits the budget runs whole, without a probe.
+UPPER_BYTES_PER_CELL = 32
+
+
+def _rows_of(out: StereoOutput, top: int, bottom: int) -> StereoOutput:
+    """Rows ``[top, bottom)`` of every per-pixel field (the cost volume and extras are dropped)."""
+    changes = {}
+    for f in fields(out):
+        value = getattr(out, f.name)
+        if f.name == "cost_volume":
+            changes[f.name] = None
+        elif f.name == "extras":
+            changes[f.name] = {}
+        elif isinstance(value, torch.Tensor):
+            changes[f.name] = value[..., top:bottom, :]
+    return replace(out, **changes)
+
+
+def _concat(parts: list[StereoOutput]) -> StereoOutput:
+    first = parts[0]
+    changes = {}
+    for f in fields(first):
+        value = getattr(first, f.name)
+        if isinstance(value, torch.Tensor):
+            changes[f.name] = torch.cat([getattr(p, f.name) for p in parts], dim=-2)
+    return replace(first, **changes)
+
+
+def plan_strips(height: int, rows_per_strip: int, overlap: int) -> list[tuple[int, int, int, int]]:
+    """``(y0, y1, core_top, core_bottom)`` per strip: the strip's rows ``[y0, y1)`` and, inside it, the core
+    rows kept; cores tile ``[0, height)`` exactly."""
+    core = max(1, rows_per_strip - 2 * overlap)
+    out = []
+    for top in range(0, height, core):
+        bottom = min(height, top + core)
+        y0, y1 = max(0, top - overlap), min(height, bottom + overlap)
+        out.append((y0, y1, top - y0, bottom - y0))
+    return out
+
+
+def match_with_budget(fn: Callable[..., StereoOutput], left: torch.Tensor, right: torch.Tensor, max_disp: int,
+                      budget_mib: float = DEFAULT_BUDGET_MIB, overlap: int = DEFAULT_OVERLAP,
+                      info: dict | None = None, rows_per_strip: int | None = None) -> StereoOutput:
+    """``fn(left, right, max_disp)`` within ``budget_mib`` MiB of extra memory, in strips when needed.
+
+    ``info`` (optional) receives ``strips``, ``rows_per_strip``, ``bytes_per_row`` and ``overlap``.
+    ``rows_per_strip`` fixes the strip height instead of deriving it from the budget (tests, experiments).
+    """
+    if rows_per_strip is not None:
+        strips = plan_strips(int(left.shape[-2]), int(rows_per_strip), overlap)
+        if info is not None:
+            info.update(strips=len(strips), rows_per_strip=int(rows_per_strip), overlap=overlap)
+        return _concat([_rows_of(fn(left[..., y0:y1, :], right[..., y0:y1, :], max_disp), top, bottom)
+                        for y0, y1, top, bottom in strips])
+    if not budget_mib > 0:
+        raise StereoInputError(f"--memory-budget: expected a positive number of MiB, got {budget_mib}")
+    h = int(left.shape[-2])
+    if left.shape[-1] * h * (max_disp + 1) * UPPER_BYTES_PER_CELL <= budget_mib * 2**20:
+        if info is not None:
+            info.update(strips=1, rows_per_strip=h, overlap=overlap)
+        return fn(left, right, max_disp)
+    probe_rows = min(h, PROBE_ROWS + 2 * overlap)
+    with PeakMemory() as mem:
+        probe = fn(left[..., :probe_rows, :], right[..., :probe_rows, :], max_disp)
+    per_row = max(mem.peak_mib, 1e-3) * 2**20 / probe_rows
+    rows = int(SAFETY * budget_mib * 2**20 / per_row)
+    if info is not None:
+        info.update(bytes_per_row=int(per_row), overlap=overlap)
+    if rows >= h:  # the whole pair fits
+        if info is not None:
+            info.update(strips=1, rows_per_strip=h)
+        return probe if probe_rows == h else fn(left, right, max_disp)
+    if rows - 2 * overlap < MIN_CORE:
+        need = (2 * overlap + MIN_CORE) * per_row / SAFETY / 2**20
+        raise StereoInputError(f"--memory-budget: {budget_mib:g} MiB is too small for one strip of this pair "
+                               f"({left.shape[-1]} px wide, {max_disp} disparities): needs at least {need:.0f} MiB")
+    strips = plan_strips(h, rows, overlap)
+    if info is not None:
+        info.update(strips=len(strips), rows_per_strip=rows)
+    parts = []
+    for y0, y1, top, bottom in strips:
+        out = fn(left[..., y0:y1, :], right[..., y0:y1, :], max_disp)
+        parts.append(_rows_of(out, top, bottom))
+    return _concat(parts)
