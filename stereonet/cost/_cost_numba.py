@@ -82,3 +82,64 @@ def census_khw(grey, window, bits_per_word):
                     wk[x] |= np.uint64(seg[x] < centre[x]) << sh
                 bit += 1
     return out
+
+
+@numba.njit(cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
+def _popcount64(x):
+    """Set bits of a uint64 (SWAR with shifts only, so it vectorises)."""
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    x = x + (x >> np.uint64(8))
+    x = x + (x >> np.uint64(16))
+    x = x + (x >> np.uint64(32))
+    return x & np.uint64(0x7F)
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
+def census_hamming_hwd_u8(codes_l, codes_r, n_disp):
+    """Pixelwise census cost ``(H, W, D)`` uint8 of codes ``(K, H, W)`` uint64: ``vol[y, x, d]`` = Hamming
+    distance of left (y, x) and right (y, x - d) for ``d <= x``; the positions ``x < d`` are left for
+    :func:`fill_triangle_u8` (their value, ``max + 1``, is known only after every row). Also returns the
+    per-row maxima (H,) int64. Rows in parallel; per pixel one loop over a contiguous slice of the reversed
+    right row (vectorised). Distances must fit in uint8 (at most 254 bits, i.e. census windows <= 15)."""
+    K, H, W = codes_l.shape
+    D = n_disp
+    vol = np.empty((H, W, D), np.uint8)
+    row_max = np.zeros(H, np.int64)
+    for y in prange(H):
+        rev = np.empty((K, W), np.uint64)  # rev[k, j] = codes_r[k, y, W - 1 - j]: right[x - d] = rev[W - 1 - x + d]
+        acc = np.empty(D, np.int64)
+        for k in range(K):
+            for j in range(W):
+                rev[k, j] = codes_r[k, y, W - 1 - j]
+        m = 0
+        for x in range(W):
+            nv = min(x + 1, D)
+            base = W - 1 - x
+            cl = codes_l[0, y, x]
+            r0 = rev[0, base:base + nv]
+            for d in range(nv):
+                acc[d] = np.int64(_popcount64(cl ^ r0[d]))
+            for k in range(1, K):
+                cl = codes_l[k, y, x]
+                rk = rev[k, base:base + nv]
+                for d in range(nv):
+                    acc[d] += np.int64(_popcount64(cl ^ rk[d]))
+            o = vol[y, x]
+            for d in range(nv):
+                v = acc[d]
+                m = max(m, v)
+                o[d] = np.uint8(v)
+        row_max[y] = m
+    return vol, row_max
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
+def fill_triangle_u8(vol, fill):
+    """vol[y, x, d] = fill for x < d (uint8)."""
+    H, W, D = vol.shape
+    for y in prange(H):
+        for x in range(min(W, D)):
+            for d in range(x + 1, D):
+                vol[y, x, d] = fill

@@ -1,6 +1,9 @@
 """Numba kernel of the local selection on an ``(H, W, D)`` float32 volume: WTA, uniqueness, sub-pixel
 refinement and the right-reference WTA in one pass (same rules as :mod:`stereonet.optimize.wta`,
-:mod:`stereonet.optimize.subpixel` and :func:`stereonet.optimize.lr_check.wta_right`, tested equal)."""
+:mod:`stereonet.optimize.subpixel` and :func:`stereonet.optimize.lr_check.wta_right`, tested equal).
+
+Every kernel is compiled with ``fastmath=False``: the minima start at +inf sentinels and NaN costs must
+never win, which fastmath's no-inf/no-NaN assumptions would let the compiler break."""
 
 from __future__ import annotations
 
@@ -9,7 +12,7 @@ import numpy as np
 from numba import prange
 
 
-@numba.njit(inline="always")
+@numba.njit(inline="always", fastmath=False)
 def wta_right_row(row, out):
     """Right-reference WTA of one row (W, D) into out (W,), ties to the smallest disparity.
 
@@ -30,13 +33,13 @@ def wta_right_row(row, out):
             out[xr] = fd if take else out[xr]
 
 
-@numba.njit(inline="always")
+@numba.njit(inline="always", fastmath=False)
 def is_unique(best, second, keep):
     """The uniqueness rule of :func:`stereonet.optimize.wta.uniqueness_mask`: best <= (1 - ratio) * second."""
     return best <= keep * second
 
 
-@numba.njit(inline="always")
+@numba.njit(inline="always", fastmath=False)
 def subpixel_offset(best, cm, cp, method):
     """Offset in [-0.5, 0.5] of the parabola (method 1) or equiangular (2) fit through c(d-1), c(d), c(d+1);
     0 for a degenerate fit."""
@@ -51,7 +54,7 @@ def subpixel_offset(best, cm, cp, method):
     return off
 
 
-@numba.njit(inline="always")
+@numba.njit(inline="always", fastmath=False)
 def lr_check_row(disp_int, disp_right, lr_ok, lr_tol):
     """LR check of one row: integer left disparities (W,) against the right-reference row (W,)."""
     for x in range(disp_int.shape[0]):
@@ -62,7 +65,7 @@ def lr_check_row(disp_int, disp_right, lr_ok, lr_tol):
             lr_ok[x] = abs(disp_int[x] - disp_right[xr]) <= lr_tol
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True, fastmath=False)
 def select_hwd(vol, method, ratio, lr_tol):
     """Args: vol (H, W, D) float32; method 0 = none, 1 = parabola, 2 = equiangular; ratio in [0, 1);
     lr_tol: LR-check tolerance (< 0 = no check).
@@ -98,7 +101,81 @@ def select_hwd(vol, method, ratio, lr_tol):
     return disp, min_cost, unique, disp_right, lr_ok
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True, fastmath=False)
+def _margin_scalar(c, exclude, eps):
+    """:func:`stereonet.optimize._confidence_numba.cost_margin_hwd` of one cost curve (D,): the general
+    rule (NaN and +inf never win), for the rare pixels where the selection's best or second is not finite."""
+    inf = np.float32(np.inf)
+    c1 = inf
+    i1 = -1
+    for d in range(c.shape[0]):
+        if c[d] < c1:
+            c1 = c[d]
+            i1 = d
+    if i1 < 0:
+        return np.float32(0.0)
+    c2 = inf
+    for d in range(c.shape[0]):
+        if abs(d - i1) > exclude and c[d] < c2:
+            c2 = c[d]
+    if c2 == inf:
+        return np.float32(1.0)
+    m = (c2 - c1) / (abs(c2) + eps)
+    return min(max(m, np.float32(0.0)), np.float32(1.0))
+
+
+# fastmath=False: +inf is the "no competitor" sentinel and NaN must never win (see _confidence_numba)
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def select_confidence_hwd(vol, method, ratio, lr_tol, eps):
+    """:func:`select_hwd` plus the cost-margin confidence (H, W) float32 of
+    :func:`stereonet.optimize.confidence.cost_margin_confidence` with ``exclude=1``, from the same pass:
+    its best cost is the WTA minimum and its competitor the uniqueness test's second best (both over
+    ``|d - best| > 1``). Pixels whose best or second is not finite get the general rule
+    (:func:`_margin_scalar`), so the confidence equals the separate kernel's on any volume.
+
+    Returns: ``(disp, min_cost, unique, disp_right, lr_ok, confidence)``.
+    """
+    H, W, D = vol.shape
+    disp = np.empty((H, W), np.float32)
+    min_cost = np.empty((H, W), np.float32)
+    unique = np.ones((H, W), np.bool_)
+    disp_right = np.zeros((H, W), np.float32)
+    lr_ok = np.ones((H, W), np.bool_)
+    conf = np.zeros((H, W), np.float32)
+    keep = np.float32(1.0 - ratio)
+    inf = np.float32(np.inf)
+    n_chunks = min(H, 64)
+    for chunk in prange(n_chunks):
+        T = np.empty((D, W), np.float32)
+        dint = np.empty(W, np.float32)
+        best = np.empty(W, np.float32)
+        bi = np.empty(W, np.int64)
+        second = np.empty(W, np.float32)
+        best_r = np.empty(W, np.float32)
+        strip = np.zeros((1, 1, 4), np.float32)
+        for y in range(chunk * H // n_chunks, (chunk + 1) * H // n_chunks):
+            transpose_row(vol[y], T)
+            # the second best is needed for the confidence even without a uniqueness test
+            select_row_t(T, y, method, keep, True, False, disp, min_cost, unique, dint, strip, disp_right,
+                         best, bi, second, best_r)
+            if ratio <= 0:
+                unique[y] = True
+            if lr_tol >= 0:
+                lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
+            for x in range(W):
+                c1 = best[x]
+                c2 = second[x]
+                if not (np.isfinite(c1) and (np.isfinite(c2) or c2 == inf)):
+                    conf[y, x] = _margin_scalar(vol[y, x], 1, eps)
+                elif c2 == inf:
+                    conf[y, x] = 1.0
+                else:
+                    m = (c2 - c1) / (abs(c2) + eps)
+                    conf[y, x] = min(max(m, np.float32(0.0)), np.float32(1.0))
+    return disp, min_cost, unique, disp_right, lr_ok, conf
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
 def wta_right_hwd(vol):
     """Right-reference WTA (H, W) float32 of a left-reference (H, W, D) volume, ties to the smallest d."""
     H, W, D = vol.shape
@@ -108,7 +185,7 @@ def wta_right_hwd(vol):
     return disp_right
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=False)
 def transpose_row(row, T):
     """T[d, x] = row[x, d] for a (W, D) cost row (strided stores that stay in L1)."""
     W, D = row.shape
@@ -118,7 +195,7 @@ def transpose_row(row, T):
             T[d, x] = r[d]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=False)
 def select_row_t(T, y, method, keep, use_unique, in_image_only, disp, min_cost, unique, disp_int, strip,
                  disp_right, best, bi, second, best_r):
     """Selection of one cost row given transposed, ``T`` (D, W): every loop runs along x (contiguous,

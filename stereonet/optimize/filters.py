@@ -10,15 +10,55 @@ import torch.nn.functional as F
 from stereonet.checks import StereoInputError, check_shape, check_window
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(inline="always", fastmath=False)
+def _sort2(a, b):
+    return (a, b) if a <= b else (b, a)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _median9(p0, p1, p2, p3, p4, p5, p6, p7, p8):
+    """Median of nine values by the 19-exchange network (Paeth's opt_med9): the 5th smallest, the value the
+    insertion sort of :func:`_median_kernel` picks for nine samples."""
+    p1, p2 = _sort2(p1, p2)
+    p4, p5 = _sort2(p4, p5)
+    p7, p8 = _sort2(p7, p8)
+    p0, p1 = _sort2(p0, p1)
+    p3, p4 = _sort2(p3, p4)
+    p6, p7 = _sort2(p6, p7)
+    p1, p2 = _sort2(p1, p2)
+    p4, p5 = _sort2(p4, p5)
+    p7, p8 = _sort2(p7, p8)
+    p0, p3 = _sort2(p0, p3)
+    p5, p8 = _sort2(p5, p8)
+    p4, p7 = _sort2(p4, p7)
+    p3, p6 = _sort2(p3, p6)
+    p1, p4 = _sort2(p1, p4)
+    p2, p5 = _sort2(p2, p5)
+    p4, p7 = _sort2(p4, p7)
+    p4, p2 = _sort2(p4, p2)
+    p6, p4 = _sort2(p6, p4)
+    p4, p2 = _sort2(p4, p2)
+    return p4
+
+
+# fastmath=False: comparisons only (exact), and NaN disparities must not be assumed away
+@numba.njit(parallel=True, cache=True, fastmath=False)
 def _median_kernel(disp: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
-    """Lower median of the valid samples of each size x size window (replicated border)."""
+    """Lower median of the valid samples of each size x size window (replicated border). Interior 3x3
+    windows with nine valid samples take the sorting network :func:`_median9` (the same value)."""
     h, w = disp.shape
     r = size // 2
     out = np.empty_like(disp)
     for y in numba.prange(h):
         buf = np.empty(size * size, disp.dtype)
         for x in range(w):
+            if size == 3 and 0 < y < h - 1 and 0 < x < w - 1 and (
+                    valid[y - 1, x - 1] & valid[y - 1, x] & valid[y - 1, x + 1] & valid[y, x - 1] & valid[y, x]
+                    & valid[y, x + 1] & valid[y + 1, x - 1] & valid[y + 1, x] & valid[y + 1, x + 1]):
+                out[y, x] = _median9(disp[y - 1, x - 1], disp[y - 1, x], disp[y - 1, x + 1], disp[y, x - 1],
+                                     disp[y, x], disp[y, x + 1], disp[y + 1, x - 1], disp[y + 1, x],
+                                     disp[y + 1, x + 1])
+                continue
             n = 0
             for yy in range(y - r, y + r + 1):
                 yc = min(max(yy, 0), h - 1)

@@ -123,13 +123,19 @@ def _path_torch(cost: torch.Tensor, dx: int, dy: int, P1: float, p2: torch.Tenso
     return torch.stack([rows[y] for y in range(h)], dim=2)
 
 
-def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide: bool = True):
-    check_cost_volume(cost)
+def check_sgm_options(P1: float, P2: float, paths: int, p2_alpha: float) -> tuple[tuple[int, int], ...]:
+    """Validate the penalties and the path count; returns :func:`sgm_directions` of ``paths``."""
     directions = sgm_directions(paths)
     if not (P1 >= 0 and P2 >= P1):
         raise StereoInputError(f"P1/P2: expected 0 <= P1 <= P2, got P1={P1}, P2={P2}")
     if p2_alpha < 0:
         raise StereoInputError(f"p2_alpha: expected >= 0, got {p2_alpha}")
+    return directions
+
+
+def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide: bool = True):
+    check_cost_volume(cost)
+    directions = check_sgm_options(P1, P2, paths, p2_alpha)
     if image is not None:
         if check_guide:
             check_image(image, "image")
@@ -176,18 +182,36 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
         backend == "auto" and cost.device.type == "cpu" and not (torch.is_grad_enabled() and cost.requires_grad))
     if not use_numba:
         return sgm_aggregate_torch(cost, P1, P2, paths, image, p2_alpha)
+    b = cost.shape[0]
+    costs = (cost[i].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy() for i in range(b))
+    total = sgm_aggregate_hwd(costs, P1, P2, directions, image, p2_alpha)
+    return total.to(device=cost.device, dtype=cost.dtype)
+
+
+def sgm_aggregate_hwd(costs, P1: float, P2: float, directions, image: torch.Tensor | None,
+                      p2_alpha: float) -> torch.Tensor:
+    """The numba backend of :func:`sgm_aggregate` on ``(H, W, D)`` arrays (arguments already checked).
+
+    Args:
+        costs: an iterable of B C-contiguous ``(H, W, D)`` float32 or uint8 cost arrays (integer costs such
+            as census distances may come as uint8: the same result, a quarter of the memory traffic); each
+            is consumed before the next is taken, so a generator keeps one converted volume at a time.
+        directions: from :func:`sgm_directions`; image: the guide :math:`(B, C, H, W)` or None.
+
+    Returns:
+        :math:`(B, D, H, W)` float32 CPU, a permuted view of a ``(B, H, W, D)`` buffer.
+    """
     from stereonet.optimize._sgm_numba import sgm_numba_hwd
 
-    b, n, h, w = cost.shape
-    grey = None if image is None else [grey_numpy(image[i]) for i in range(b)]  # B x (H, W)
     dirs = np.asarray(directions, dtype=np.int64)
     outs = []
-    for i in range(b):
-        p2 = p2_maps_numpy(P1, P2, directions, grey[i] if grey is not None else np.zeros((h, w), np.float32),
-                           p2_alpha if grey is not None else 0.0)
-        c_hwd = cost[i].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD
-        s = sgm_numba_hwd(c_hwd, np.float32(P1), p2, dirs)
+    for i, c_hwd in enumerate(costs):
+        h, w = c_hwd.shape[:2]
+        if image is None:
+            p2 = p2_maps_numpy(P1, P2, directions, np.zeros((h, w), np.float32), 0.0)
+        else:
+            p2 = p2_maps_numpy(P1, P2, directions, grey_numpy(image[i]), p2_alpha)
+        outs.append(torch.from_numpy(sgm_numba_hwd(c_hwd, np.float32(P1), p2, dirs)))
         del c_hwd
-        outs.append(torch.from_numpy(s))
-    total = torch.stack(outs) if b > 1 else outs[0][None]  # BxHxWxD
-    return total.permute(0, 3, 1, 2).to(device=cost.device, dtype=cost.dtype)  # BxDxHxW
+    total = torch.stack(outs) if len(outs) > 1 else outs[0][None]  # BxHxWxD
+    return total.permute(0, 3, 1, 2)  # BxDxHxW

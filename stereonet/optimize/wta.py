@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from stereonet.checks import StereoInputError, check_cost_volume
@@ -105,6 +106,40 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
         vol = cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
         outs.append([torch.from_numpy(a) for a in select_hwd(vol, method, ratio, tol)])
     return _stack_selection(outs, cost.dtype, cost.device)
+
+
+def select_disparity_confidence(cost: torch.Tensor, subpixel: str | None = "parabola", uniqueness: float = 0.0,
+                                lr_tol: float | None = None, backend: str = "auto") -> tuple[tuple, torch.Tensor]:
+    """:func:`select_disparity` and :func:`~stereonet.optimize.confidence.cost_margin_confidence`
+    (``exclude=1``) of the same volume, in one numba pass for a float32 CPU volume without gradient
+    (:func:`stereonet.optimize._select_numba.select_confidence_hwd`, the same numbers as the two calls).
+
+    Returns:
+        ``(selection, confidence)``: the 5-tuple of :func:`select_disparity` and :math:`(B, 1, H, W)`
+        confidence in [0, 1] (dtype and device of ``cost``).
+    """
+    from stereonet.optimize.confidence import EPS, cost_margin_confidence
+
+    check_cost_volume(cost)
+    method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
+    if backend not in ("auto", "torch", "numba"):
+        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
+    use_numba = cost.shape[1] >= 2 and (backend == "numba" or (
+        backend == "auto" and cost.device.type == "cpu" and cost.dtype == torch.float32
+        and not (torch.is_grad_enabled() and cost.requires_grad)))
+    if not use_numba:
+        return (select_disparity(cost, subpixel, uniqueness, lr_tol, backend=backend),
+                cost_margin_confidence(cost, backend="torch" if backend == "torch" else "auto"))
+    from stereonet.optimize._select_numba import select_confidence_hwd
+
+    outs, confs = [], []
+    for b in range(cost.shape[0]):
+        vol = cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
+        res = select_confidence_hwd(vol, method, ratio, tol, np.float32(EPS))
+        outs.append([torch.from_numpy(a) for a in res[:5]])
+        confs.append(torch.from_numpy(res[5]))
+    conf = torch.stack(confs)[:, None].to(device=cost.device, dtype=cost.dtype)
+    return _stack_selection(outs, cost.dtype, cost.device), conf
 
 
 def _stack_selection(outs: list, dtype: torch.dtype, device: torch.device) -> tuple:
