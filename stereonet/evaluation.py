@@ -188,7 +188,8 @@ def _warm_up(fn: Callable, item: dict, max_disp: int) -> None:
 def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int | None = None, fill: bool = False,
                    shard: tuple[int, int] = (0, 1), plots: Path | None = None, progress: bool = True,
                    options: dict[str, dict] | None = None, load: Callable | None = None,
-                   budget: float | None = None, pair_cap: float | None = None) -> Evaluation:
+                   budget: float | None = None, pair_cap: float | None = None,
+                   memory_budget: float | None = None) -> Evaluation:
     """Run every method on every pair of every dataset spec; return per-pair results and table rows.
 
     ``load`` (default :func:`stereonet.data.load_dataset`) maps a spec to a dataset of item dicts; it is
@@ -197,6 +198,8 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
     its remaining pairs there are skipped (counted in the row's ``skipped`` key) - for benchmarks that must
     finish in bounded time. ``pair_cap``: a pair is skipped when the method's projected time for it exceeds
     this many seconds, projected from its median time per unit of work (H x W x (max_disp + 1)) so far.
+    ``memory_budget`` (MiB): each matcher call runs within it, in overlapping strips when the pair needs more
+    (:func:`stereonet.tiling.match_with_budget`); None = whole pairs.
     """
     from tqdm import tqdm
 
@@ -206,6 +209,12 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
         from stereonet.data import load_dataset as load
     datasets = [(dataset_label(s), load(s)) for s in specs]
     fns = {m: matchers.get_matcher(m, **(options or {}).get(m, {})) for m in methods}
+    if memory_budget is not None:
+        import functools
+
+        from stereonet.tiling import match_with_budget
+
+        fns = {m: functools.partial(match_with_budget, fn, budget_mib=memory_budget) for m, fn in fns.items()}
     i_shard, n_shard = shard
     indices = {label: [i for i in range(len(ds)) if i % n_shard == i_shard] for label, ds in datasets}
     total = sum(len(v) for v in indices.values()) * len(methods)
@@ -269,6 +278,10 @@ def _run_one(fn: Callable, left: torch.Tensor, right: torch.Tensor, max_disp: in
             out = apply_fill(out)
         return (pair_metrics(out, item) if fill else raw, raw, clock.seconds, mem.peak_mib, None), out
     except Exception as e:  # noqa: BLE001 - one failing method must not stop the comparison
+        from stereonet.tiling import MemoryBudgetError
+
+        if isinstance(e, MemoryBudgetError):  # the run's own argument, not the method: stop with one line
+            raise
         msg = " ".join(str(e).split()) or "no message"
         return (None, None, math.nan, math.nan, f"{type(e).__name__}: {msg}"), None
 

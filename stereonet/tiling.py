@@ -34,6 +34,10 @@ SAFETY = 0.7  # share of the budget the planned strips may use (the probe's meas
 UPPER_BYTES_PER_CELL = 32
 
 
+class MemoryBudgetError(StereoInputError):
+    """The budget cannot hold one strip: bad input (the budget), not a failure of the method."""
+
+
 def _rows_of(out: StereoOutput, top: int, bottom: int) -> StereoOutput:
     """Rows ``[top, bottom)`` of every per-pixel field (the cost volume and extras are dropped)."""
     changes = {}
@@ -104,7 +108,7 @@ def match_with_budget(fn: Callable[..., StereoOutput], left: torch.Tensor, right
         return probe if probe_rows == h else fn(left, right, max_disp)
     if rows - 2 * overlap < MIN_CORE:
         need = (2 * overlap + MIN_CORE) * per_row / SAFETY / 2**20
-        raise StereoInputError(f"--memory-budget: {budget_mib:g} MiB is too small for one strip of this pair "
+        raise MemoryBudgetError(f"--memory-budget: {budget_mib:g} MiB is too small for one strip of this pair "
                                f"({left.shape[-1]} px wide, {max_disp} disparities): needs at least {need:.0f} MiB")
     strips = plan_strips(h, rows, overlap)
     if info is not None:

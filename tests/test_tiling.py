@@ -82,3 +82,15 @@ def test_too_small_a_budget_is_one_line():
     assert "\n" not in str(e.value)
     with pytest.raises(StereoInputError, match="positive"):
         match_with_budget(matchers.get_matcher("sgm"), left, left, 32, budget_mib=0)
+
+
+def test_eval_memory_budget(tmp_path, capsys):
+    """eval.py --memory-budget: the same table within the tolerance when strips are needed; too small a budget
+    is one line, exit 2 (bad input, not a failed method)."""
+    from stereonet.cli import eval as ev
+
+    assert ev.main(["--methods", "bm-sad", "--data", "synthetic:1", "--memory-budget", "0.001", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--memory-budget" in err[0] and "too small" in err[0]
+    assert ev.main(["--methods", "bm-sad", "--data", "synthetic:1", "--memory-budget", "-1", "--no-progress"]) == 2
+    assert ev.main(["--methods", "bm-sad", "--data", "synthetic:1", "--memory-budget", "40", "--no-progress"]) == 0

@@ -83,6 +83,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--shard", default=None, help="evaluate only pairs with index %% n == i (i/n)")
     p.add_argument("--budget", type=float, default=None,
                    help="seconds a method may spend on one dataset; its remaining pairs there are skipped")
+    p.add_argument("--memory-budget", type=float, default=None, metavar="MIB",
+                   help="extra memory one matcher call may use; larger pairs run in overlapping strips of rows "
+                        "(default: whole pairs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -105,8 +108,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             import stereonet.optimize.fill  # noqa: F401 - fail now, not after the first pair
         if args.budget is not None and not args.budget > 0:
             raise StereoInputError(f"--budget: expected a positive number of seconds, got {args.budget}")
+        if args.memory_budget is not None and not args.memory_budget > 0:
+            raise StereoInputError(f"--memory-budget: expected a positive number of MiB, got {args.memory_budget}")
         ev = run_evaluation(methods, specs, args.max_disp, args.fill, shard, args.plots, not args.no_progress,
-                            budget=args.budget)
+                            budget=args.budget, memory_budget=args.memory_budget)
     except USER_ERRORS as e:
         return fail(PROG, e)
     except ImportError as e:
