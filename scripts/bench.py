@@ -89,6 +89,9 @@ def summarize(ev: Evaluation, groups: dict[str, list[str]]) -> list[dict]:
             row["bad2_raw"] = median_of(sel, "bad2", raw=True)
             row["density_raw"] = median_of(sel, "density", raw=True)
             row["time_ratio"] = float(np.median(ratios)) if ratios else None
+            rates = [p.work / p.seconds / 1e6 for p in sel
+                     if p.metrics is not None and getattr(p, "work", 0) and p.seconds > 0]
+            row["mdes"] = float(np.median(rates)) if rates else None  # million disparity evaluations per s
             same = [ref[(p.dataset, p.pair)] for p in sel if p.metrics is not None and (p.dataset, p.pair) in ref]
             ref_b2 = median_of(same, "bad2")  # the reference on the same pairs this method ran on
             row["bad2_ratio"] = row["bad2"] / ref_b2 if row["bad2"] is not None and ref_b2 else None
@@ -103,7 +106,7 @@ def _fmt(v: float | None, spec: str) -> str:
 
 def markdown_table(rows: Sequence[dict], group: str) -> str:
     head = ("| method | pairs | EPE | bad-1 | bad-2 | bad-4 | D1 | SEE | bad-2 noc | bad-2 raw | density raw | "
-            "s/pair | × sgbm time | ÷ sgbm bad-2 | peak MiB |")
+            "s/pair | Mde/s | × sgbm time | ÷ sgbm bad-2 | peak MiB |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     sel = sorted((r for r in rows if r["group"] == group),  # methods that ran on every pair first
                  key=lambda r: (not r["complete"], r["bad2"] is None, r["bad2"] if r["bad2"] is not None else 0))
@@ -114,7 +117,7 @@ def markdown_table(rows: Sequence[dict], group: str) -> str:
             f"`{r['method']}`{note}", str(r["pairs"]), _fmt(r["epe"], ".2f"), _fmt(r["bad1"], ".1f"),
             _fmt(r["bad2"], ".1f"), _fmt(r["bad4"], ".1f"), _fmt(r["d1"], ".1f"), _fmt(r["see"], ".2f"),
             _fmt(r["bad2_noc"], ".1f"), _fmt(r["bad2_raw"], ".1f"), _fmt(r["density_raw"], ".1f"),
-            _fmt(r["seconds"], ".3f"), _fmt(r["time_ratio"], ".1f"), _fmt(r["bad2_ratio"], ".2f"),
+            _fmt(r["seconds"], ".3f"), _fmt(r.get("mdes"), ".0f"), _fmt(r["time_ratio"], ".1f"), _fmt(r["bad2_ratio"], ".2f"),
             _fmt(r["peak_mib"], ".0f")]) + " |")
     return "\n".join(lines)
 
@@ -264,7 +267,7 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
         "same occlusion filling (`eval.py --fill`), so the main columns compare dense maps; `bad-2 raw` and "
         "`density raw` are before filling. bad-τ and D1 are % of ground-truth pixels (missing predictions count "
         "as errors), EPE and SEE (SMD-Nets soft edge error on depth discontinuities) are in pixels; `noc` = "
-        "non-occluded pixels (datasets with an occlusion mask). `× sgbm time` and `÷ sgbm bad-2` are ratios to "
+        "non-occluded pixels (datasets with an occlusion mask). `Mde/s` is million disparity evaluations (W x H x (max_disp + 1)) per second, the median over pairs; `× sgbm time` and `÷ sgbm bad-2` are ratios to "
         f"`{REFERENCE}` medians on the same pairs; peak MiB is the extra resident memory of one call (see "
         f"`stereonet/measure.py`). Rows are sorted by bad-2, methods that ran on every pair first; the bad-2 "
         f"ratio of a method that skipped pairs compares it with opencv-sgbm on the pairs it ran. {caps}",

@@ -131,6 +131,7 @@ class PairResult:
     error: str | None = None
     skipped: bool = False
     run: int = 0  # which benchmark run measured it (scripts/bench.py --merge keeps several)
+    work: float = 0.0  # W x H x (max_disp + 1): disparity evaluations of the pair (for Mde/s)
 
 
 @dataclass
@@ -250,7 +251,7 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                         _warm_up(fns[m], item, md)
                         warmed.add(m)
                     res, out = _run_one(fns[m], left, right, md, item, fill)
-                    result.pairs.append(PairResult(m, label, name, *res))
+                    result.pairs.append(PairResult(m, label, name, *res, work=work))
                     if not math.isnan(res[2]):
                         spent[(m, label)] = spent.get((m, label), 0.0) + res[2]
                         rates.setdefault(m, []).append(res[2] / work)

@@ -37,6 +37,10 @@ def test_bench_writes_report(tmp_path, monkeypatch):
     ratios = {r[1]: r[col] for r in rows if len(r) > col}
     assert ratios["`opencv-sgbm`"] == "1.0"  # the reference against itself
     assert float(ratios["`opencv-bm`"]) > 0
+    mcol = [c.strip() for c in header.split("|")].index("Mde/s")
+    mdes = {r[1]: r[mcol] for r in rows if len(r) == len(header.split("|"))}
+    assert set(mdes) == {"`opencv-bm`", "`opencv-sgbm`"}
+    assert all(float(v) > 0 for v in mdes.values())  # million disparity evaluations per second
     for name in ("speed_accuracy_synthetic.png", "bad2_per_dataset.png"):
         assert (docs / name).stat().st_size > 0
         assert f"(docs/bench/{name})" in text
