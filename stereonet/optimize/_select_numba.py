@@ -65,7 +65,6 @@ def lr_check_row(disp_int, disp_right, lr_ok, lr_tol):
             lr_ok[x] = abs(disp_int[x] - disp_right[xr]) <= lr_tol
 
 
-@numba.njit(parallel=True, cache=True, fastmath=False)
 def select_hwd(vol, method, ratio, lr_tol):
     """Args: vol (H, W, D) float32; method 0 = none, 1 = parabola, 2 = equiangular; ratio in [0, 1);
     lr_tol: LR-check tolerance (< 0 = no check).
@@ -74,31 +73,21 @@ def select_hwd(vol, method, ratio, lr_tol):
     disp_right (H, W) float32 (integer-valued right-reference WTA, ties to the smallest disparity),
     lr_ok (H, W) bool (:func:`stereonet.optimize.lr_check.left_right_check` of the integer WTA disparity
     and disp_right, i.e. before sub-pixel refinement). Each row is transposed to (D, W) and selected by
-    :func:`select_row_t`.
+    :func:`select_row_t` (:func:`_select_kernel` without the confidence).
     """
-    H, W, D = vol.shape
-    disp = np.empty((H, W), np.float32)
-    min_cost = np.empty((H, W), np.float32)
-    unique = np.ones((H, W), np.bool_)
-    disp_right = np.zeros((H, W), np.float32)
-    lr_ok = np.ones((H, W), np.bool_)
-    keep = np.float32(1.0 - ratio)
-    n_chunks = min(H, 64)  # row chunks (per-chunk buffers), plenty for any thread count
-    for chunk in prange(n_chunks):
-        T = np.empty((D, W), np.float32)
-        dint = np.empty(W, np.float32)
-        best = np.empty(W, np.float32)
-        bi = np.empty(W, np.int64)
-        second = np.empty(W, np.float32)
-        best_r = np.empty(W, np.float32)
-        strip = np.zeros((1, 1, 4), np.float32)
-        for y in range(chunk * H // n_chunks, (chunk + 1) * H // n_chunks):
-            transpose_row(vol[y], T)
-            select_row_t(T, y, method, keep, ratio > 0, False, disp, min_cost, unique, dint, strip, disp_right,
-                         best, bi, second, best_r)
-            if lr_tol >= 0:
-                lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
-    return disp, min_cost, unique, disp_right, lr_ok
+    return _select_kernel(vol, method, ratio, lr_tol, np.float32(0.0), False)[:5]
+
+
+def select_confidence_hwd(vol, method, ratio, lr_tol, eps):
+    """:func:`select_hwd` plus the cost-margin confidence (H, W) float32 of
+    :func:`stereonet.optimize.confidence.cost_margin_confidence` with ``exclude=1``, from the same pass:
+    its best cost is the WTA minimum and its competitor the uniqueness test's second best (both over
+    ``|d - best| > 1``). Pixels whose best or second is not finite get the general rule
+    (:func:`_margin_scalar`), so the confidence equals the separate kernel's on any volume.
+
+    Returns: ``(disp, min_cost, unique, disp_right, lr_ok, confidence)``.
+    """
+    return _select_kernel(vol, method, ratio, lr_tol, np.float32(eps), True)
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -126,15 +115,9 @@ def _margin_scalar(c, exclude, eps):
 
 # fastmath=False: +inf is the "no competitor" sentinel and NaN must never win (see _confidence_numba)
 @numba.njit(parallel=True, cache=True, fastmath=False)
-def select_confidence_hwd(vol, method, ratio, lr_tol, eps):
-    """:func:`select_hwd` plus the cost-margin confidence (H, W) float32 of
-    :func:`stereonet.optimize.confidence.cost_margin_confidence` with ``exclude=1``, from the same pass:
-    its best cost is the WTA minimum and its competitor the uniqueness test's second best (both over
-    ``|d - best| > 1``). Pixels whose best or second is not finite get the general rule
-    (:func:`_margin_scalar`), so the confidence equals the separate kernel's on any volume.
-
-    Returns: ``(disp, min_cost, unique, disp_right, lr_ok, confidence)``.
-    """
+def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf):
+    """The one selection pass of :func:`select_hwd` and (``with_conf``) :func:`select_confidence_hwd`;
+    returns ``(disp, min_cost, unique, disp_right, lr_ok, confidence)`` (confidence zeros without it)."""
     H, W, D = vol.shape
     disp = np.empty((H, W), np.float32)
     min_cost = np.empty((H, W), np.float32)
@@ -144,7 +127,7 @@ def select_confidence_hwd(vol, method, ratio, lr_tol, eps):
     conf = np.zeros((H, W), np.float32)
     keep = np.float32(1.0 - ratio)
     inf = np.float32(np.inf)
-    n_chunks = min(H, 64)
+    n_chunks = min(H, 64)  # row chunks (per-chunk buffers), plenty for any thread count
     for chunk in prange(n_chunks):
         T = np.empty((D, W), np.float32)
         dint = np.empty(W, np.float32)
@@ -156,12 +139,14 @@ def select_confidence_hwd(vol, method, ratio, lr_tol, eps):
         for y in range(chunk * H // n_chunks, (chunk + 1) * H // n_chunks):
             transpose_row(vol[y], T)
             # the second best is needed for the confidence even without a uniqueness test
-            select_row_t(T, y, method, keep, True, False, disp, min_cost, unique, dint, strip, disp_right,
-                         best, bi, second, best_r)
-            if ratio <= 0:
+            select_row_t(T, y, method, keep, ratio > 0 or with_conf, False, disp, min_cost, unique, dint, strip,
+                         disp_right, best, bi, second, best_r)
+            if with_conf and ratio <= 0:
                 unique[y] = True
             if lr_tol >= 0:
                 lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
+            if not with_conf:
+                continue
             for x in range(W):
                 c1 = best[x]
                 c2 = second[x]
