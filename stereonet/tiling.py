@@ -82,39 +82,30 @@ def match_with_budget(fn: Callable[..., StereoOutput], left: torch.Tensor, right
     ``info`` (optional) receives ``strips``, ``rows_per_strip``, ``bytes_per_row`` and ``overlap``.
     ``rows_per_strip`` fixes the strip height instead of deriving it from the budget (tests, experiments).
     """
-    if rows_per_strip is not None:
-        strips = plan_strips(int(left.shape[-2]), int(rows_per_strip), overlap)
-        if info is not None:
-            info.update(strips=len(strips), rows_per_strip=int(rows_per_strip), overlap=overlap)
-        return _concat([_rows_of(fn(left[..., y0:y1, :], right[..., y0:y1, :], max_disp), top, bottom)
-                        for y0, y1, top, bottom in strips])
-    if not budget_mib > 0:
-        raise StereoInputError(f"--memory-budget: expected a positive number of MiB, got {budget_mib}")
+    info = {} if info is None else info
     h = int(left.shape[-2])
-    if left.shape[-1] * h * (max_disp + 1) * UPPER_BYTES_PER_CELL <= budget_mib * 2**20:
-        if info is not None:
-            info.update(strips=1, rows_per_strip=h, overlap=overlap)
-        return fn(left, right, max_disp)
-    probe_rows = min(h, PROBE_ROWS + 2 * overlap)
-    with PeakMemory() as mem:
-        probe = fn(left[..., :probe_rows, :], right[..., :probe_rows, :], max_disp)
-    per_row = max(mem.peak_mib, 1e-3) * 2**20 / probe_rows
-    rows = int(SAFETY * budget_mib * 2**20 / per_row)
-    if info is not None:
-        info.update(bytes_per_row=int(per_row), overlap=overlap)
-    if rows >= h:  # the whole pair fits
-        if info is not None:
+    if rows_per_strip is None:
+        if not budget_mib > 0:
+            raise StereoInputError(f"--memory-budget: expected a positive number of MiB, got {budget_mib}")
+        info.update(overlap=overlap)
+        if left.shape[-1] * h * (max_disp + 1) * UPPER_BYTES_PER_CELL <= budget_mib * 2**20:
             info.update(strips=1, rows_per_strip=h)
-        return probe if probe_rows == h else fn(left, right, max_disp)
-    if rows - 2 * overlap < MIN_CORE:
-        need = (2 * overlap + MIN_CORE) * per_row / SAFETY / 2**20
-        raise MemoryBudgetError(f"--memory-budget: {budget_mib:g} MiB is too small for one strip of this pair "
-                               f"({left.shape[-1]} px wide, {max_disp} disparities): needs at least {need:.0f} MiB")
-    strips = plan_strips(h, rows, overlap)
-    if info is not None:
-        info.update(strips=len(strips), rows_per_strip=rows)
-    parts = []
-    for y0, y1, top, bottom in strips:
-        out = fn(left[..., y0:y1, :], right[..., y0:y1, :], max_disp)
-        parts.append(_rows_of(out, top, bottom))
-    return _concat(parts)
+            return fn(left, right, max_disp)
+        probe_rows = min(h, PROBE_ROWS + 2 * overlap)
+        with PeakMemory() as mem:
+            probe = fn(left[..., :probe_rows, :], right[..., :probe_rows, :], max_disp)
+        per_row = max(mem.peak_mib, 1e-3) * 2**20 / probe_rows
+        rows_per_strip = int(SAFETY * budget_mib * 2**20 / per_row)
+        info.update(bytes_per_row=int(per_row))
+        if rows_per_strip >= h:  # the whole pair fits
+            info.update(strips=1, rows_per_strip=h)
+            return probe if probe_rows == h else fn(left, right, max_disp)
+        if rows_per_strip - 2 * overlap < MIN_CORE:
+            need = (2 * overlap + MIN_CORE) * per_row / SAFETY / 2**20
+            raise MemoryBudgetError(f"--memory-budget: {budget_mib:g} MiB is too small for one strip of this "
+                                    f"pair ({left.shape[-1]} px wide, {max_disp} disparities): needs at least "
+                                    f"{need:.0f} MiB")
+    strips = plan_strips(h, int(rows_per_strip), overlap)
+    info.update(strips=len(strips), rows_per_strip=int(rows_per_strip), overlap=overlap)
+    return _concat([_rows_of(fn(left[..., y0:y1, :], right[..., y0:y1, :], max_disp), top, bottom)
+                    for y0, y1, top, bottom in strips])
