@@ -312,12 +312,6 @@ def content_valid(disp: torch.Tensor, left_content: torch.Tensor, right_content:
     return (left_content & hit)[None, None]
 
 
-def geometry_reversed(calib) -> bool:
-    from stereonet.geometry import is_reversed_rig
-
-    return is_reversed_rig(calib)
-
-
 def mirror_output(out):
     """A matcher's output on a mirrored pair, flipped back (every per-pixel tensor, along x)."""
     import dataclasses
@@ -379,6 +373,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     if uncalibrated or (calib is not None and not calib.is_rectified()):
         from stereonet import geometry
 
+        prepared = None  # (rectification, left content, right content) of a fixed rig's earlier pair
         if uncalibrated:
             rect = geometry.rectify_uncalibrated(left, right, alpha=st.alpha)
             info["rectified"] = "uncalibrated (SIFT + robust F)"
@@ -392,7 +387,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
             info["rectification_maps"] = "computed" if prepared is None else "reused (fixed rig, computed once)"
             depth_calib = rect.calib
             write_rectified_calibration(out_dir / "rectified_calib.yaml", rect, st.unit)
-        if not uncalibrated and prepared is not None:
+        if prepared is not None:
             left_content, right_content = prepared[1], prepared[2]
         else:
             left_content = geometry.content_mask(rect.maps[0], w, h).to(device)
@@ -421,8 +416,10 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
                     "pass --calib FILE or --uncalibrated to rectify it first")
     # a rig whose second camera sits on the left: matches lie at x + d, so the pair is matched mirrored
     # (both images flipped left-right: the first stays the reference, the outputs stay upright)
+    from stereonet.geometry import is_reversed_rig
+
     mirror = bool(rect.reversed) if rect is not None else (
-        calib is not None and calib.is_rectified() and geometry_reversed(calib))
+        calib is not None and calib.is_rectified() and is_reversed_rig(calib))
     if mirror:
         info["reversed_rig"] = True
         if rect is None:  # a rectified rig with t = (+B, 0, 0): depth of the mirrored disparity x2 - x1
