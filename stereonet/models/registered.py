@@ -62,6 +62,12 @@ def load_network(expected: str, checkpoint: str | os.PathLike | None = None) -> 
     return _cached(str(path), mtime, expected)
 
 
+@functools.lru_cache(maxsize=8)
+def _torch_graph(network: str, net: torch.nn.Module) -> NetworkGraph:
+    """One graph per loaded network, so its per-device copies (NetworkGraph._net_on) are made once."""
+    return NetworkGraph(network, net)
+
+
 def methods_of(network: str) -> list[str]:
     """The registered matchers that run ``network`` ("siamese" -> siamese, siamese-sgm, siamese-census-sgm)."""
     return [m for m, n in NETWORK_OF.items() if n == network]
@@ -99,7 +105,7 @@ def network_graph(network: str, checkpoint: str | os.PathLike | None = None, bac
     if backend == "torch":
         if onnx_model is not None:
             raise StereoInputError("onnx_model: only used with backend='onnx'")
-        return NetworkGraph(network, load_network(network, checkpoint))
+        return _torch_graph(network, load_network(network, checkpoint))
     try:
         import onnxruntime  # noqa: F401
     except ImportError:
