@@ -5,7 +5,7 @@
 ``make setup`` runs it. The kernels are ``cache=True``: numba writes the machine code beside the sources
 (``__pycache__/*.nbi|nbc``) and every later process loads it instead of compiling (about 25 s on 2 cores for
 the whole set). Each classical matcher runs once with its default options on a tiny pair, in float32 (what
-``infer.py``/``eval.py`` use), plus the shared occlusion fill and a tiny data_gen render. A kernel whose source
+``infer.py``/``eval.py`` use), plus the learned matchers' cost kernels, the shared occlusion fill and a tiny data_gen render. A kernel whose source
 changes is recompiled by numba on its next call, as before.
 """
 
@@ -38,6 +38,15 @@ def warm_up(verbose: bool = True) -> list[tuple[str, float]]:
         if matchers.spec(name).kind != "classical":
             continue
         step(name, lambda n=name: matchers.match(n, left, right, 16))
+
+    def learned_cost():  # the kernels of the Siamese matchers' cost (no weights needed)
+        from stereonet.models.siamese import siamese_cost_volume
+
+        feats = torch.nn.functional.normalize(torch.rand(2, 8, 40, 72, generator=g), dim=1)
+        vol = siamese_cost_volume(feats[:1], feats[1:], 16, backend="numba")
+        matchers.match("sgm", left, right, 16, extra_cost=(0.25, 18.0, vol))
+
+    step("learned cost", learned_cost)
 
     def fill():
         from stereonet.evaluation import apply_fill

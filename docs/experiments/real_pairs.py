@@ -1,5 +1,6 @@
 """Per-pair real bad-2 (after the shared fill) for methods with optional checkpoints: label=method[@ckpt]."""
 import json
+import os
 import statistics
 import sys
 
@@ -32,4 +33,6 @@ for m, row in table.items():
     au = [row[k]["ause"] for k in pairs if "ause" in row[k]]
     print(f"| {m} | " + " | ".join(f"{x:.1f}" for x in b) + f" | {statistics.median(b):.1f} | "
           f"{statistics.median(see):.2f} | " + (f"{statistics.median(au):.2f}" if au else "-") + " |")
-json.dump({m: row for m, row in table.items()}, open(sys.argv[3] if len(sys.argv) > 3 else "/tmp/exp/pairs.json", "w"), indent=1)
+out = sys.argv[3] if len(sys.argv) > 3 else "/tmp/exp/pairs.json"
+os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
+json.dump({m: row for m, row in table.items()}, open(out, "w"), indent=1)

@@ -1,5 +1,5 @@
 """Numba CPU helpers of the cost volumes: box means of ``(H, W, C)`` float32 images, census codes and the
-out-of-image fill of ``(H, W, D)`` volumes. The volumes themselves are computed row by row by
+out-of-image fill of ``(H, W, D)`` volumes, the learned-feature cost and the mix of two volumes. The volumes themselves are computed row by row by
 :mod:`stereonet.cost._block_numba`. Rows (or columns) run in parallel with ``prange``.
 """
 
@@ -143,3 +143,43 @@ def fill_triangle_u8(vol, fill):
         for x in range(min(W, D)):
             for d in range(x + 1, D):
                 vol[y, x, d] = fill
+
+
+# fastmath: only reassociation and contraction (FMA), so the dot product over features vectorises; no
+# 'nnan'/'ninf', so NaN and inf inputs keep their meaning. It changes the sum's rounding (~1e-7), nothing else.
+@numba.njit(parallel=True, cache=True, fastmath={"reassoc", "contract"})
+def feature_cost_hwd(feat_l, feat_r, n_disp, invalid):
+    """Learned matching cost ``(H, W, D)`` float32 of features ``(H, W, F)`` float32: ``vol[y, x, d] =
+    1 - sum_f feat_l[y, x, f] * feat_r[y, x - d, f]`` for ``d <= x``, ``invalid`` for ``x < d``. Rows in
+    parallel; each dot product runs over the contiguous feature axis (vectorised)."""
+    H, W, F = feat_l.shape
+    D = n_disp
+    vol = np.empty((H, W, D), np.float32)
+    one = np.float32(1.0)
+    for y in prange(H):
+        for x in range(W):
+            nv = min(x + 1, D)
+            a = feat_l[y, x]
+            o = vol[y, x]
+            for d in range(nv):
+                b = feat_r[y, x - d]
+                acc = np.float32(0.0)
+                for f in range(F):
+                    acc += a[f] * b[f]
+                o[d] = one - acc
+            for d in range(nv, D):
+                o[d] = invalid
+    return vol
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # no fastmath: the sentinels stay exact
+def mix_costs_hwd(own, other, w_own, w_other):
+    """``w_own * own + w_other * other`` of two ``(H, W, D)`` volumes (own: any numeric dtype, e.g. the uint8
+    census volume; other: float32), as float32 (the same numbers as the float32 torch expression)."""
+    H, W, D = own.shape
+    out = np.empty((H, W, D), np.float32)
+    for y in prange(H):
+        for x in range(W):
+            for d in range(D):
+                out[y, x, d] = w_own * np.float32(own[y, x, d]) + w_other * other[y, x, d]
+    return out

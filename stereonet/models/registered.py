@@ -273,5 +273,5 @@ def siamese_census_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp
 
     if not 0.0 <= learned_weight <= 1.0:
         raise StereoInputError(f"learned_weight: expected a value in [0, 1], got {learned_weight!r}")
-    learned = _siamese_cost(left, right, max_disp, checkpoint, backend, onnx_model).clamp(max=2.0)  # BxDxHxW
+    learned = _siamese_cost(left, right, max_disp, checkpoint, backend, onnx_model).clamp_(max=2.0)  # BxDxHxW, ours
     return sgm(left, right, max_disp, extra_cost=(1.0 - learned_weight, 24.0 * learned_weight, learned), **options)

@@ -8,6 +8,7 @@ pixel pairs sampled from ground truth: positives at the true disparity, negative
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -81,18 +82,33 @@ class SiameseNet(nn.Module):
         return feats.transpose(1, 2)
 
 
-def siamese_cost_volume(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int) -> torch.Tensor:
+def siamese_cost_volume(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int,
+                        backend: str = "auto") -> torch.Tensor:
     """Matching cost ``1 - <f_l(x, y), f_r(x - d, y)>`` for d = 0..max_disp (lower = better).
 
     Args:
         feat_left, feat_right: unit-length features :math:`(B, F, H, W)`.
+        backend: ``"auto"`` (the numba kernel for float32 CPU features without gradient, else torch),
+            ``"torch"`` or ``"numba"`` (equal to float32 rounding, ~1e-6: the two sum the products in different orders).
     Returns:
         cost :math:`(B, D, H, W)`, D = max_disp + 1, in [0, 2]; :data:`INVALID_COST` where ``x - d < 0``.
+        The numba result is a permuted view of a ``(B, H, W, D)`` buffer (what SGM's kernel reads).
     """
+    from stereonet.cost.volume import use_numba
+
     check_shape(feat_left, ["B", "F", "H", "W"], "feat_left")
     if feat_right.shape != feat_left.shape:
         raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
     b, _, h, w = feat_left.shape
+    if use_numba(feat_left, feat_right, backend):
+        from stereonet.cost._cost_numba import feature_cost_hwd
+
+        def hwf(t: torch.Tensor) -> np.ndarray:  # (F, H, W) -> (H, W, F); no copy for channels-last features
+            return np.ascontiguousarray(t.detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+
+        vols = [torch.from_numpy(feature_cost_hwd(hwf(feat_left[i]), hwf(feat_right[i]), max_disp + 1,
+                                                  np.float32(INVALID_COST))) for i in range(b)]
+        return (torch.stack(vols) if b > 1 else vols[0][None]).permute(0, 3, 1, 2)  # BxHxWxD seen as BxDxHxW
     cost = feat_left.new_full((b, max_disp + 1, h, w), INVALID_COST)  # BxDxHxW
     for d in range(min(max_disp + 1, w)):
         cost[:, d, :, d:] = 1.0 - (feat_left[..., d:] * feat_right[..., : w - d]).sum(dim=1)

@@ -27,6 +27,7 @@ instead of 83 % on Cones), both below SGBM (4.76 / 2.20 / 11.91 / 18.92 / 8.04 /
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from stereonet.checks import check_window
@@ -142,6 +143,16 @@ bm_adaptive = _bm("bm-adaptive", "adaptive", 7,
                   "Block matching, SAD over 5 shiftable 7x7 windows (centre + best 2 corners), LR check")
 
 
+def _mixed_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: torch.Tensor):
+    """``w_own * own[i] + w_extra * other[i]`` per image as (H, W, D) float32 (``other``: (B, D, H, W)), one
+    image at a time (a generator, as :func:`~stereonet.optimize.sgm.sgm_aggregate_hwd` consumes it)."""
+    from stereonet.cost._cost_numba import mix_costs_hwd
+
+    for i, vol in enumerate(own):
+        o = np.ascontiguousarray(other[i].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+        yield mix_costs_hwd(vol, o, np.float32(w_own), np.float32(w_extra))
+
+
 @register("sgm", kind="classical",
           description="Semi-global matching: census 7x7, 8 paths, edge-adapted P2, parabola, LR, median, speckle")
 def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
@@ -162,13 +173,16 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     # the registry validated left/right: no second check of the images
     extra = cost_opts.pop("extra_cost", None)
     census_window = cost_opts.get("census_window", 5)
-    if (cost_name == "census" and window == 1 and extra is None and set(cost_opts) <= {"census_window", "backend"}
+    if (cost_name == "census" and window == 1 and set(cost_opts) <= {"census_window", "backend"}
             and isinstance(census_window, int) and 3 <= census_window <= CENSUS_U8_MAX_WINDOW
             and use_numba(left, right, cost_opts.get("backend", "auto"))):
         # CPU fast path, the same numbers: the pixelwise census volume as (H, W, D) uint8 straight into the
-        # numba aggregation (a quarter of the memory traffic of the float32 volume; tested equal)
+        # numba aggregation (a quarter of the memory traffic of the float32 volume; tested equal); a mixed-in
+        # volume is added by one numba pass per image (mix_costs_hwd, the float32 sum of the torch path)
         directions = check_sgm_options(P1, P2, paths, p2_alpha)
         vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
+        if extra is not None:
+            vols = _mixed_hwd(vols, *extra)
         agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha).to(left.device)
         del vols
     else:

@@ -139,3 +139,46 @@ def test_registered_sgm_fast_path_equals_public_composition():
     assert torch.equal(out.confidence, cost_margin_confidence(agg) * ref.valid.float())
     slow = matchers.match("sgm", left, right, 20, backend="torch")  # the float volume path, torch cost
     assert torch.equal(slow.valid, out.valid)
+
+
+# (B, F, H, W, max_disp): W < D, one feature, F not a multiple of a vector, several images
+FEATURE_SHAPES = [(1, 32, 5, 70, 64), (2, 16, 9, 12, 20), (1, 1, 3, 8, 3), (2, 33, ROW_BLOCK + 3, 17, 9)]
+
+
+@pytest.mark.parametrize("b, f, h, w, max_disp", FEATURE_SHAPES)
+def test_feature_cost_kernel_equals_torch(b, f, h, w, max_disp):
+    """The learned (Siamese) cost ``1 - <f_l, f_r>``: numba kernel = torch loop to float32 rounding, the
+    out-of-image triangle exactly INVALID_COST, on plain and channels-last features."""
+    from stereonet.models.siamese import INVALID_COST, siamese_cost_volume
+
+    g = torch.Generator().manual_seed(f)
+    fl = torch.nn.functional.normalize(torch.randn(b, f, h, w, generator=g), dim=1)
+    fr = torch.nn.functional.normalize(torch.randn(b, f, h, w, generator=g), dim=1)
+    ref = siamese_cost_volume(fl, fr, max_disp, backend="torch")
+    for a, c in [(fl, fr), (fl.contiguous(memory_format=torch.channels_last),
+                            fr.contiguous(memory_format=torch.channels_last))]:
+        fast = siamese_cost_volume(a, c, max_disp, backend="numba")
+        assert fast.shape == ref.shape == (b, max_disp + 1, h, w)
+        torch.testing.assert_close(fast, ref, rtol=0, atol=1e-6)
+        xs = torch.arange(w)
+        outside = (xs[None, :] < torch.arange(max_disp + 1)[:, None])[None, :, None, :].expand_as(fast)
+        assert torch.all(fast[outside] == INVALID_COST) and torch.all(fast[~outside] <= 2.0 + 1e-6)
+    fl_nan = fl.clone()
+    fl_nan[0, 0, 1, 2] = float("nan")  # no 'nnan' in the kernel's fastmath flags: NaN stays NaN
+    assert torch.isnan(siamese_cost_volume(fl_nan, fr, max_disp, backend="numba")[0, :3, 1, 2]).all()
+
+
+def test_sgm_with_a_mixed_in_volume_fast_path_equals_float_path():
+    """``sgm(extra_cost=(a, b, V))`` (siamese-census-sgm's cost): the uint8 census + numba mix path gives the
+    same aggregated cost and maps as the float32 volume path (census volume built by torch, mixed by torch)."""
+    g = torch.Generator().manual_seed(5)
+    h, w, max_disp = ROW_BLOCK + 5, 47, 16
+    big = torch.rand(1, 3, h, w + 5, generator=g)
+    left, right = big[..., 5:].contiguous(), big[..., :w].contiguous()
+    other = torch.rand(1, max_disp + 1, h, w, generator=g) * 2.0
+    fast = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other))
+    slow = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), backend="torch")
+    torch.testing.assert_close(fast.cost_volume, slow.cost_volume, rtol=1e-6, atol=1e-3)
+    assert torch.equal(fast.valid, slow.valid) and torch.equal(fast.disparity, slow.disparity)
+    plain = matchers.match("sgm", left, right, max_disp)
+    assert not torch.equal(plain.cost_volume, fast.cost_volume)  # the mixed-in volume was used
