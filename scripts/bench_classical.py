@@ -28,17 +28,34 @@ from pathlib import Path
 
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # running as a script from a checkout
-    sys.path.insert(0, str(REPO))
-
-from stereonet import matchers, metrics  # noqa: E402
-from stereonet.cli.common import PeakMemory  # noqa: E402
-from stereonet.io.atomic import atomic_write_text  # noqa: E402
-from stereonet.optimize.fill import fill_occlusions  # noqa: E402
+from stereonet import matchers, metrics
+from stereonet.cli.common import PeakMemory
+from stereonet.io.atomic import atomic_write_text
+from stereonet.optimize.fill import fill_occlusions
 
 BM = ["bm-sad", "bm-ssd", "bm-zsad", "bm-lssad", "bm-ncc", "bm-census", "bm-adaptive"]
 REFERENCE = {"sgm": "opencv-sgbm", **{m: "opencv-bm" for m in BM}}
+
+
+def reference(method: str) -> str | None:
+    """The OpenCV method a method's time is divided by: opencv-bm for bm-*, opencv-sgbm for the others."""
+    if method.startswith("opencv-"):
+        return None
+    return REFERENCE.get(method, "opencv-sgbm")
+
+
+def add_checkpoint_methods(entries: list[str]) -> list[str]:
+    """``LABEL=METHOD@CHECKPOINT`` entries registered as ``LABEL`` (a learned matcher with other weights)."""
+    names = []
+    for entry in entries:
+        label, sep, rest = entry.partition("=")
+        if sep:
+            method, _, ckpt = rest.partition("@")
+            fn = matchers.get_matcher(method, checkpoint=ckpt) if ckpt else matchers.get_matcher(method)
+            matchers.register(label, kind="learned", description=f"{method} with {ckpt}")(
+                lambda l, r, m, fn=fn: fn(l, r, m))
+        names.append(label)
+    return names
 
 
 def load_cones() -> tuple[torch.Tensor, torch.Tensor]:
@@ -66,7 +83,7 @@ def time_methods(methods: list[str], left: torch.Tensor, right: torch.Tensor, ma
     for r in res.values():
         r["seconds"] = statistics.median(r.pop("times"))
     for m, r in res.items():
-        ref = REFERENCE.get(m)
+        ref = reference(m)
         r["ratio"] = r["seconds"] / res[ref]["seconds"] if ref in res else None
     return res
 
@@ -86,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="scripts/bench_classical.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--methods", default=",".join(["opencv-sgbm", "sgm", "opencv-bm", *BM]),
-                   help="methods to time on Cones (OpenCV references are added when needed)")
+                   help="methods to time on Cones (OpenCV references are added when needed); "
+                        "LABEL=METHOD@CHECKPOINT times a learned matcher with other weights")
     p.add_argument("--accuracy", default="opencv-sgbm,sgm", help="methods for bad-2 on the real pairs ('' = skip)")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--cpu", action="store_true",
@@ -103,9 +121,9 @@ def main(argv: list[str] | None = None) -> int:
         cv2.setNumThreads(1)
         clock = time.process_time
 
-    methods = [m for m in args.methods.split(",") if m]
+    methods = add_checkpoint_methods([m for m in args.methods.split(",") if m])
     for m in list(methods):
-        ref = REFERENCE.get(m)
+        ref = reference(m)
         if ref and ref not in methods:
             methods.insert(0, ref)
     report: dict = {"speed": {}, "accuracy": {}}
@@ -114,10 +132,10 @@ def main(argv: list[str] | None = None) -> int:
         report["speed"] = time_methods(methods, left, right, 63, args.repeats, clock)
         print(f"Cones 450x375, 64 disparities, median of {args.repeats} interleaved runs, "
               f"torch threads {torch.get_num_threads()}" + (", CPU seconds, one thread everywhere" if args.cpu else ""))
-        print(f"{'method':14s} {'seconds':>9s} {'x ref':>7s} {'ref':>12s} {'peak MiB':>9s}")
+        print(f"{'method':18s} {'seconds':>9s} {'x ref':>7s} {'ref':>12s} {'peak MiB':>9s}")
         for m, r in report["speed"].items():
             ratio = "" if r["ratio"] is None else f"{r['ratio']:.2f}"
-            print(f"{m:14s} {r['seconds']:9.4f} {ratio:>7s} {REFERENCE.get(m, ''):>12s} {r['peak_mib']:9.1f}")
+            print(f"{m:18s} {r['seconds']:9.4f} {ratio:>7s} {reference(m) or '':>12s} {r['peak_mib']:9.1f}")
 
     acc = [m for m in args.accuracy.split(",") if m]
     if acc:
