@@ -10,8 +10,8 @@ STAGES = [
     ("images", "io.read_image\ndata.load_dataset\ndata_gen"),
     ("rectify", "geometry\n(kornia: F, E, pose,\nrectification)"),
     ("cost", "cost/\nSAD ... census,\nSiamese features"),
-    ("aggregate", "optimize/\nwindows, SGM, DP,\nBP, graph cuts"),
-    ("select", "optimize/\nWTA, subpixel, LR,\nfill, filters"),
+    ("aggregate", "aggregate/\nSGM, DP, BP,\ngraph cuts, soft"),
+    ("select", "select/\nWTA, subpixel, LR,\nfill, filters"),
     ("StereoOutput", "disparity, valid,\nconfidence /\nuncertainty"),
     ("3-D", "geometry.depth\ndepth, points\nio: PFM, PNG, PLY"),
 ]
@@ -38,7 +38,7 @@ def main(out: Path = OUT) -> None:
     x0, x1 = xs[2], xs[4] + 1.6
     ax.add_patch(FancyBboxPatch((x0, 0.35), x1 - x0, 0.7, boxstyle="round,pad=0.05", fc="#fbefe6", ec="#a0522d"))
     ax.text((x0 + x1) / 2, 0.7, "models/: DispNet, SMD (end to end) replace cost -> select\n"
-            "matchers.py: one name -> one of these paths", ha="center", va="center", fontsize=8.6)
+            "matchers/: one registry, name -> path; kernels/: numba CPU kernels", ha="center", va="center", fontsize=8.6)
     ax.text(7.0, 3.95, "one pair through stereonet: infer.py runs the whole path, eval.py scores StereoOutput, "
             "train.py fits models/ on data_gen", ha="center", fontsize=9.5, style="italic")
     out.parent.mkdir(parents=True, exist_ok=True)

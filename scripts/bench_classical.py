@@ -11,7 +11,7 @@
    (work ratios, for a machine busy with other jobs).
 2. Accuracy on every real pair of ../shared/data (``stereonet.data.load_dataset("real")``, each pair's own
    ``max_disp``): bad-2 over all pixels with ground truth after the shared textbook filling of invalid pixels
-   (:func:`stereonet.optimize.fill.fill_occlusions`, as ``eval.py --fill``), plus the density before filling.
+   (:func:`stereonet.select.fill.fill_occlusions`, as ``eval.py --fill``), plus the density before filling.
 
 Not a test: timings depend on the machine and its load; the targets (``sgm`` <= 3x ``opencv-sgbm``,
 ``bm-*`` <= 3x ``opencv-bm``, ``sgm`` bad-2 <= ``opencv-sgbm`` bad-2 on every pair) are read off the output.
@@ -31,7 +31,7 @@ import torch
 from stereonet import matchers, metrics
 from stereonet.cli.common import PeakMemory
 from stereonet.io.atomic import atomic_write_text
-from stereonet.optimize.fill import fill_occlusions
+from stereonet.select.fill import fill_occlusions
 
 BM = ["bm-sad", "bm-ssd", "bm-zsad", "bm-lssad", "bm-ncc", "bm-census", "bm-adaptive"]
 REFERENCE = {"sgm": "opencv-sgbm", **{m: "opencv-bm" for m in BM}}

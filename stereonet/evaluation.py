@@ -148,7 +148,7 @@ def _batch(x: torch.Tensor) -> torch.Tensor:
 
 def apply_fill(out: StereoOutput) -> StereoOutput:
     """The shared filling of ``--fill``: invalid pixels get :func:`fill_occlusions`' values, all valid."""
-    from stereonet.optimize.fill import fill_occlusions
+    from stereonet.select.fill import fill_occlusions
 
     disp = fill_occlusions(out.disparity, out.valid)
     valid = torch.isfinite(disp)

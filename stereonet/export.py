@@ -57,7 +57,7 @@ class ExportReport:
 def learned_network(method: str) -> str:
     """The network ``method`` runs ("siamese", "dispnet", "smd"); StereoInputError naming ``method`` otherwise."""
     from stereonet import matchers
-    from stereonet.models.registered import NETWORK_OF
+    from stereonet.matchers.learned import NETWORK_OF
 
     spec = matchers.spec(method)  # unknown names: the registry's error lists the valid ones
     if spec.kind != "learned" or method not in NETWORK_OF:
@@ -109,8 +109,8 @@ def export_onnx(method: str, out: str | os.PathLike, checkpoint: str | os.PathLi
     """
     from stereonet import matchers
     from stereonet.io.atomic import atomic_path
+    from stereonet.matchers.learned import methods_of
     from stereonet.models.graphs import export_graph, verification_pair
-    from stereonet.models.registered import methods_of
     from stereonet.models.weights import default_weights_path, load_weights
 
     network = learned_network(method)
@@ -159,8 +159,8 @@ def build_parser():
 
 def _check_args(args) -> None:
     """Every argument checked, with its command-line name, before anything is computed."""
+    from stereonet.matchers.learned import load_network
     from stereonet.models.graphs import min_export_width
-    from stereonet.models.registered import load_network
     from stereonet.models.weights import default_weights_path
 
     try:

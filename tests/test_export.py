@@ -23,7 +23,7 @@ pytest.importorskip("onnxruntime", reason="optional software: the onnx extra is 
 from stereonet import export, matchers  # noqa: E402
 from stereonet.data import bundled_data_dir  # noqa: E402
 from stereonet.io import read_image  # noqa: E402
-from stereonet.models.registered import NETWORK_OF, methods_of  # noqa: E402
+from stereonet.matchers.learned import NETWORK_OF, methods_of  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CONES = bundled_data_dir() / "middlebury2003" / "cones"
@@ -94,8 +94,8 @@ def test_smd_upsample_and_downscale_to_range_on_onnx(cones, onnx_files, threads)
 
 def test_torch_backend_is_the_plain_network(cones, threads):
     """backend='torch' runs the network exactly as predict_disparity / predict_smd do."""
+    from stereonet.matchers.learned import load_network
     from stereonet.models.dispnet import predict_disparity
-    from stereonet.models.registered import load_network
     from stereonet.models.smd import predict_smd
 
     left, right = cones

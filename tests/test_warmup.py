@@ -7,7 +7,7 @@ from stereonet.warmup import main, warm_up
 
 
 def test_warm_up_runs_every_classical_matcher_and_compiles_the_sgm_kernel():
-    from stereonet.optimize import _sgm_numba
+    from stereonet.kernels import sgm as _sgm_numba
 
     steps = dict(warm_up(verbose=False))
     classical = [n for n in matchers.available() if matchers.spec(n).kind == "classical"]

@@ -3,13 +3,13 @@ import functools
 import sys
 
 import data_gen
+from stereonet.aggregate.sgm import sgm_aggregate
 from stereonet.cost.volume import build_cost_volume_checked
 from stereonet.data import _SyntheticItems
 from stereonet.evaluation import format_table, run_evaluation
+from stereonet.matchers import local as rl
 from stereonet.matchers import register
 from stereonet.models import registered as reg
-from stereonet.optimize import registered_local as rl
-from stereonet.optimize.sgm import sgm_aggregate
 
 ckpt = sys.argv[1]
 alphas = [float(x) for x in sys.argv[2].split(",")]

@@ -20,7 +20,7 @@ What the numbers mean:
   average the predicted pixels only, so read them with ``density`` (the share of GT pixels predicted), as
   :mod:`stereonet.metrics` defines. ``*_noc`` (non-occluded) and ``*_occ`` metrics appear when the dataset
   has an occlusion mask; the table shows EPE-noc and bad-2-noc, the JSON every key. ``--fill`` applies one
-  shared filling (:func:`stereonet.optimize.fill.fill_occlusions`) to every method's invalid pixels for a
+  shared filling (:func:`stereonet.select.fill.fill_occlusions`) to every method's invalid pixels for a
   dense comparison.
 - SEE (soft edge error, SMD-Nets) is computed for every method from its disparity on the ground truth's
   depth-discontinuity pixels (not only for methods with a mixture head), so edge sharpness compares across
@@ -105,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.max_disp is not None and args.max_disp <= 0:
             raise StereoInputError(f"--max-disp: expected a positive integer, got {args.max_disp}")
         if args.fill:
-            import stereonet.optimize.fill  # noqa: F401 - fail now, not after the first pair
+            import stereonet.select.fill  # noqa: F401 - fail now, not after the first pair
         if args.budget is not None and not args.budget > 0:
             raise StereoInputError(f"--budget: expected a positive number of seconds, got {args.budget}")
         if args.memory_budget is not None and not args.memory_budget > 0:

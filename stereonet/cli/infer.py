@@ -620,7 +620,7 @@ def backend_options(args, method: str, spec) -> dict:
                                "--onnx-model, not both")
     if not args.onnx_model.is_file():
         raise FileNotFoundError(f"--onnx-model: no such file: {args.onnx_model}")
-    from stereonet.models.registered import NETWORK_OF, network_graph
+    from stereonet.matchers.learned import NETWORK_OF, network_graph
 
     try:  # opens it once: not an export of this method's network is an argument error
         network_graph(NETWORK_OF[method], backend="onnx", onnx_model=args.onnx_model)

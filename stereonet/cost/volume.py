@@ -32,7 +32,7 @@ Adaptive windows (``cost="adaptive"``, :func:`adaptive_cost_volume`): Hirschmül
 pixel) over a pixelwise SAD/SSD.
 
 Backends: a vectorised torch path (differentiable, any device, chunked) and numba CPU kernels
-(:mod:`stereonet.cost._cost_numba`, tested equal) that ``backend="auto"`` picks for float32 CPU input
+(:mod:`stereonet.kernels.cost`, tested equal) that ``backend="auto"`` picks for float32 CPU input
 without gradient; the numba path returns a ``(B, D, H, W)`` view of a ``(B, H, W, D)`` buffer and needs
 one volume of memory (no chunking needed beyond that).
 
@@ -52,6 +52,7 @@ import torch
 from stereonet.checks import StereoInputError, check_image, check_max_disp, check_stereo_inputs, check_window
 from stereonet.cost.box import box_mean, min_filter
 from stereonet.cost.census import BITS_PER_WORD, census_transform, grey_numpy, popcount, to_grey
+from stereonet.kernels import use_numba
 
 DEFAULT_MEMORY_BUDGET = 512 * 2**20
 NCC_MIN_VARIANCE = 1e-6
@@ -154,15 +155,6 @@ def fill_out_of_image(vol: torch.Tensor, fill: float | None = None) -> torch.Ten
     return vol.masked_fill_(bad, fill)
 
 
-def use_numba(left: torch.Tensor, right: torch.Tensor, backend: str) -> bool:
-    if backend not in ("auto", "torch", "numba"):
-        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
-    if backend == "numba":
-        return True
-    needs_grad = torch.is_grad_enabled() and (left.requires_grad or right.requires_grad)
-    return backend == "auto" and left.device.type == "cpu" and left.dtype == torch.float32 and not needs_grad
-
-
 def _chw(img: torch.Tensor) -> np.ndarray:
     """(C, H, W) tensor -> (C, H, W) float32 C-contiguous array (no copy for a contiguous float32 CPU tensor)."""
     return np.ascontiguousarray(img.detach().to("cpu", torch.float32).numpy())
@@ -170,7 +162,7 @@ def _chw(img: torch.Tensor) -> np.ndarray:
 
 def _box_np(img: np.ndarray, window: int) -> np.ndarray:
     """box_mean of a planar (C, H, W) or (H, W) float32 array with the numba kernel (a copy)."""
-    from stereonet.cost._cost_numba import box_mean_hwd
+    from stereonet.kernels.cost import box_mean_hwd
 
     hwc = np.array(img[:, :, None] if img.ndim == 2 else img.transpose(1, 2, 0), dtype=np.float32, order="C")
     box_mean_hwd(hwc, window)
@@ -190,10 +182,10 @@ _NO_MAP = np.zeros((1, 1), np.float32)
 def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window: int, *,
                       census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
                       mode: str = "multiwindow", base: str = "sad") -> tuple:
-    """Arguments ``(kind, L, R, CL, CR, window, post, post_window, lam_c, lam_a, mu_l, isd_l, mu_r, isd_r)`` of :func:`stereonet.cost._block_numba.block_cost_rows` for one pair ``(C, H, W)`` (inputs
+    """Arguments ``(kind, L, R, CL, CR, window, post, post_window, lam_c, lam_a, mu_l, isd_l, mu_r, isd_r)`` of :func:`stereonet.kernels.block.block_cost_rows` for one pair ``(C, H, W)`` (inputs
     already checked), i.e. the definition of ``cost`` as pixelwise cost + box window + post-processing."""
-    from stereonet.cost import _block_numba as E
-    from stereonet.cost._cost_numba import census_khw
+    from stereonet.kernels import block as E
+    from stereonet.kernels.cost import census_khw
 
     if cost not in COSTS + ("adaptive",):
         raise StereoInputError(f"cost: expected one of {', '.join(COSTS + ('adaptive',))}, got {cost!r}")
@@ -238,8 +230,8 @@ def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window
 
 def run_block_engine(mode: int, args: tuple, n_disp: int, method: int = 0, ratio: float = 0.0,
                      lr_tol: float = -1.0) -> tuple:
-    """Call :func:`stereonet.cost._block_numba.block_cost_rows` with :func:`numba_engine_args` ``args``."""
-    from stereonet.cost._block_numba import block_cost_rows
+    """Call :func:`stereonet.kernels.block.block_cost_rows` with :func:`numba_engine_args` ``args``."""
+    from stereonet.kernels.block import block_cost_rows
 
     kind, li, ri, cl, cr, box, post, post_window, lam_c, lam_a, mu_l, isd_l, mu_r, isd_r = args
     return block_cost_rows(mode, kind, li, ri, cl, cr, n_disp, box, post, post_window, lam_c, lam_a,
@@ -254,15 +246,15 @@ def out_of_image_cost(row_maxima: list[np.ndarray]) -> np.float32:
 def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
                       **options) -> torch.Tensor:
     """The numba CPU path of every cost (inputs already checked): same definitions as the torch path,
-    computed row by row by :func:`stereonet.cost._block_numba.block_cost_rows` (``options``: those of
+    computed row by row by :func:`stereonet.kernels.block.block_cost_rows` (``options``: those of
     :func:`numba_engine_args`).
 
     Returns:
         :math:`(B, D, H, W)` float32 *view* of a ``(B, H, W, D)`` buffer (disparity innermost, the layout
         the numba SGM and selection kernels read without copying), cast to the input dtype.
     """
-    from stereonet.cost._block_numba import MODE_VOLUME
-    from stereonet.cost._cost_numba import fill_invalid_hwd
+    from stereonet.kernels.block import MODE_VOLUME
+    from stereonet.kernels.cost import fill_invalid_hwd
 
     vols, maxima = [], []
     for b in range(left.shape[0]):
@@ -286,7 +278,7 @@ def census_pixel_volumes_u8(left: torch.Tensor, right: torch.Tensor, max_disp: i
     arrays (inputs already checked, ``3 <= census_window <= 15``): the same values (integers in bits,
     ``x < d`` = ``max + 1`` over the batch) in a quarter of the memory, for the numba SGM kernel.
     """
-    from stereonet.cost._cost_numba import census_hamming_hwd_u8, census_khw, fill_triangle_u8
+    from stereonet.kernels.cost import census_hamming_hwd_u8, census_khw, fill_triangle_u8
 
     check_window(census_window, "census_window")
     if not 3 <= census_window <= CENSUS_U8_MAX_WINDOW:
@@ -327,7 +319,7 @@ def ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, *,
                    backend: str = "auto") -> torch.Tensor:
     """Pixelwise absolute difference (mean over channels). ``left``/``right`` (B, C, H, W) -> (B, D, H, W)."""
     left, right, max_disp, _ = _prepare(left, right, max_disp, 1)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "ad", 1)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, memory_budget=memory_budget)
 
@@ -337,7 +329,7 @@ def sad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wind
                     backend: str = "auto") -> torch.Tensor:
     """Window mean of absolute differences. (B, C, H, W) pair -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "sad", window)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
 
@@ -347,7 +339,7 @@ def ssd_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wind
                     backend: str = "auto") -> torch.Tensor:
     """Window mean of squared differences. (B, C, H, W) pair -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "ssd", window)
     return sweep_cost_volume(left, right, max_disp, _sq_diff, _box(window), memory_budget=memory_budget)
 
@@ -357,7 +349,7 @@ def zsad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, win
                      backend: str = "auto") -> torch.Tensor:
     """SAD of zero-mean images ``I - box_mean(I, window)`` (see module doc). -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "zsad", window)
     lz, rz = left - box_mean(left, window), right - box_mean(right, window)
     return sweep_cost_volume(lz, rz, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
@@ -368,7 +360,7 @@ def lssad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wi
                       backend: str = "auto") -> torch.Tensor:
     """SAD of locally scaled images ``I / (box_mean(I, window) + 1/255)`` (see module doc). -> (B, D, H, W)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "lssad", window)
     ls = left / (box_mean(left, window) + LSSAD_EPS)
     rs = right / (box_mean(right, window) + LSSAD_EPS)
@@ -380,7 +372,7 @@ def ncc_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wind
                     backend: str = "auto") -> torch.Tensor:
     """``1 - NCC`` over the window on grey images; zero variance -> NCC := 0 (cost 1). -> (B, D, H, W) in [0, 2]."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "ncc", window)
     if window < 3:
         raise StereoInputError(f"window: NCC needs a window of at least 3, got {window}")
@@ -413,7 +405,7 @@ def census_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, w
                        backend: str = "auto") -> torch.Tensor:
     """Hamming distance of census codes, box-averaged over ``window``. -> (B, D, H, W) in bits."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "census", window, census_window=census_window)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
 
@@ -430,7 +422,7 @@ def census_ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int
                           backend: str = "auto") -> torch.Tensor:
     """AD-Census ``2 - exp(-hamming/lambda_census) - exp(-ad/lambda_ad)``. -> (B, D, H, W) in [0, 2)."""
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "census_ad", window, census_window=census_window,
                                  lambda_census=lambda_census, lambda_ad=lambda_ad)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
@@ -461,7 +453,7 @@ def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int,
         :math:`(B, D, H, W)` mean costs.
     """
     left, right, max_disp, window = _prepare(left, right, max_disp, window)
-    if use_numba(left, right, backend):
+    if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "adaptive", window, mode=mode, base=base)
     pixel = {"sad": _abs_diff, "ssd": _sq_diff}.get(base)
     if pixel is None:
@@ -489,7 +481,7 @@ def build_cost_volume_checked(left: torch.Tensor, right: torch.Tensor, max_disp:
                               window: int = 5, **options) -> torch.Tensor:
     """:func:`build_cost_volume` for a pair already validated by ``check_stereo_inputs`` (e.g. by the
     matcher registry): the numba path skips the second check of the images (a full pass over both)."""
-    if use_numba(left, right, options.get("backend", "auto")):
+    if use_numba(left, right, backend=options.get("backend", "auto")):
         opts = {k: v for k, v in options.items() if k not in ("backend", "memory_budget")}
         return numba_cost_volume(left, right, max_disp, cost, 1 if cost == "ad" else check_window(window), **opts)
     return build_cost_volume(left, right, max_disp, cost, window, **options)

@@ -1,7 +1,7 @@
 """The network part of each learned matcher as a graph of plain tensors, run by torch or by onnxruntime.
 
 A *graph* is what :mod:`stereonet.export` writes to ONNX, and the one thing the ``backend`` option of the
-learned matchers swaps (:func:`stereonet.models.registered.network_graph`); everything around it (downscale
+learned matchers swaps (:func:`stereonet.matchers.learned.network_graph`); everything around it (downscale
 to the trained range, padding, the SMD query grid, cost volumes, SGM, LR check, confidence, upsampling) is
 the same code for both backends.
 

@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from stereonet.checks import StereoInputError, check_shape
+from stereonet.kernels import use_numba
 from stereonet.models.layers import image_mean_std
 
 INVALID_COST = 2.0
@@ -94,14 +95,12 @@ def siamese_cost_volume(feat_left: torch.Tensor, feat_right: torch.Tensor, max_d
         cost :math:`(B, D, H, W)`, D = max_disp + 1, in [0, 2]; :data:`INVALID_COST` where ``x - d < 0``.
         The numba result is a permuted view of a ``(B, H, W, D)`` buffer (what SGM's kernel reads).
     """
-    from stereonet.cost.volume import use_numba
-
     check_shape(feat_left, ["B", "F", "H", "W"], "feat_left")
     if feat_right.shape != feat_left.shape:
         raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
     b, _, h, w = feat_left.shape
-    if use_numba(feat_left, feat_right, backend):
-        from stereonet.cost._cost_numba import feature_cost_hwd
+    if use_numba(feat_left, feat_right, backend=backend):
+        from stereonet.kernels.cost import feature_cost_hwd
 
         def hwf(t: torch.Tensor) -> np.ndarray:  # (F, H, W) -> (H, W, F); no copy for channels-last features
             return np.ascontiguousarray(t.detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())

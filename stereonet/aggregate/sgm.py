@@ -1,0 +1,216 @@
+"""Semi-global matching (Hirschmüller, PAMI 2008): cost aggregation along 8 or 16 straight paths.
+
+For a path direction ``r`` each path cost is the recurrence (pixel ``p``, predecessor ``p - r``)::
+
+    L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d-1) + P1, L_r(p-r, d+1) + P1, m + P2(p, r)) - m,
+    m = min_k L_r(p-r, k)
+
+with ``L_r(p, d) = C(p, d)`` where ``p - r`` is outside the image. The aggregated cost is
+``S(p, d) = sum_r L_r(p, d)`` (same shape as the cost volume, lower = better).
+
+Directions ``r = (dx, dy)`` (the path walks ``+r``): 8 paths = the 4 axis and 4 diagonal directions;
+16 paths add the 8 knight moves ``(±2, ±1), (±1, ±2)`` of the paper.
+
+Gradient-adapted P2: with a guide ``image`` (grey, in [0, 1]) the penalty for large jumps becomes
+``P2(p, r) = max(P1, P2 / (1 + p2_alpha * |I(p) - I(p - r)|))`` — smaller across intensity edges, where
+depth discontinuities are likely (the paper's ``P2 / |ΔI|`` made bounded). ``image=None`` or
+``p2_alpha=0`` keeps ``P2`` constant.
+
+Two implementations with one result: :func:`sgm_aggregate_torch` (reference, vectorised along the axis
+perpendicular to the walk, differentiable almost everywhere) and a parallel numba kernel
+(:mod:`stereonet.kernels.sgm`, float32, rows/columns in parallel) chosen by ``backend="auto"``
+for CPU tensors without gradient.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from stereonet.checks import StereoInputError, check_cost_volume, check_image, check_shape
+from stereonet.cost.census import grey_numpy, to_grey
+from stereonet.kernels import use_numba
+
+DIRECTIONS_8 = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, 1), (1, -1), (-1, -1))
+DIRECTIONS_16 = DIRECTIONS_8 + ((2, 1), (-2, 1), (2, -1), (-2, -1), (1, 2), (-1, 2), (1, -2), (-1, -2))
+
+
+def sgm_directions(paths: int) -> tuple[tuple[int, int], ...]:
+    """The ``(dx, dy)`` walk directions for ``paths`` in {4, 8, 16} (4 = the axis directions)."""
+    if paths == 4:
+        return DIRECTIONS_8[:4]
+    if paths == 8:
+        return DIRECTIONS_8
+    if paths == 16:
+        return DIRECTIONS_16
+    raise StereoInputError(f"paths: expected 4, 8 or 16, got {paths!r}")
+
+
+def p2_maps(P1: float, P2: float, directions, image: torch.Tensor | None, shape: tuple[int, int, int],
+            p2_alpha: float, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """Per-direction large-jump penalties :math:`(B, R, H, W)` (see module doc).
+
+    Pixels without a predecessor keep ``P2`` (their value is not used).
+    """
+    b, h, w = shape
+    out = torch.full((b, len(directions), h, w), float(P2), dtype=dtype, device=device)
+    if image is None or p2_alpha == 0:
+        return out
+    grey = to_grey(image).to(dtype)[:, 0]  # BxHxW
+    for i, (dx, dy) in enumerate(directions):
+        # predecessor of (y, x) is (y - dy, x - dx)
+        ys, yp = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h - max(dy, 0))
+        xs, xp = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w - max(dx, 0))
+        grad = (grey[:, ys, xs] - grey[:, yp, xp]).abs()
+        out[:, i, ys, xs] = torch.clamp(float(P2) / (1.0 + p2_alpha * grad), min=float(P1))
+    return out
+
+
+def p2_maps_numpy(P1: float, P2: float, directions, grey: np.ndarray, p2_alpha: float) -> np.ndarray:
+    """:func:`p2_maps` for one grey image (H, W) float32 in numpy (the numba backend's input, no torch
+    threading): the same float32 operations, (R, H, W) float32."""
+    h, w = grey.shape
+    out = np.full((len(directions), h, w), np.float32(P2), dtype=np.float32)
+    if p2_alpha == 0:
+        return out
+    for i, (dx, dy) in enumerate(directions):
+        ys, yp = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h - max(dy, 0))
+        xs, xp = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w - max(dx, 0))
+        grad = np.abs(grey[ys, xs] - grey[yp, xp])
+        out[i, ys, xs] = np.maximum(np.float32(P2) / (np.float32(1.0) + np.float32(p2_alpha) * grad), np.float32(P1))
+    return out
+
+
+def _path_step(c: torch.Tensor, prev: torch.Tensor, has_prev: torch.Tensor, P1: float,
+               p2: torch.Tensor) -> torch.Tensor:
+    """One recurrence step. c, prev: (B, D, N); has_prev: (N,) bool; p2: (B, 1, N) -> (B, D, N)."""
+    m = prev.min(dim=1, keepdim=True).values
+    inf = torch.full_like(prev[:, :1], float("inf"))
+    lower = torch.cat([inf, prev[:, :-1]], dim=1) + P1  # L(d - 1) + P1
+    upper = torch.cat([prev[:, 1:], inf], dim=1) + P1  # L(d + 1) + P1
+    t = torch.minimum(torch.minimum(prev, lower), torch.minimum(upper, m + p2))
+    return torch.where(has_prev, c + (t - m), c)
+
+
+def _path_torch(cost: torch.Tensor, dx: int, dy: int, P1: float, p2: torch.Tensor) -> torch.Tensor:
+    """L_r for one direction. cost (B, D, H, W), p2 (B, H, W) -> (B, D, H, W)."""
+    b, n, h, w = cost.shape
+    if dy == 0:  # walk along x; the whole column (B, D, H) is one vector
+        xs = range(w) if dx > 0 else range(w - 1, -1, -1)
+        cols: dict[int, torch.Tensor] = {}
+        for x in xs:
+            xp = x - dx
+            if 0 <= xp < w:
+                has = torch.ones(h, dtype=torch.bool, device=cost.device)
+                cols[x] = _path_step(cost[..., x], cols[xp], has, P1, p2[:, None, :, x])
+            else:
+                cols[x] = cost[..., x]
+        return torch.stack([cols[x] for x in range(w)], dim=3)
+    ys = range(h) if dy > 0 else range(h - 1, -1, -1)
+    rows: dict[int, torch.Tensor] = {}
+    x = torch.arange(w, device=cost.device)
+    has = (x - dx >= 0) & (x - dx < w)
+    for y in ys:
+        yp = y - dy
+        if 0 <= yp < h:
+            prev = rows[yp]  # BxDxW, shift so that prev_shift[..., x] = prev[..., x - dx]
+            if dx > 0:
+                prev = torch.cat([prev[..., :1].expand(-1, -1, dx), prev[..., : w - dx]], dim=2)
+            elif dx < 0:
+                prev = torch.cat([prev[..., -dx:], prev[..., -1:].expand(-1, -1, -dx)], dim=2)
+            rows[y] = _path_step(cost[:, :, y], prev, has, P1, p2[:, None, y])
+        else:
+            rows[y] = cost[:, :, y]
+    return torch.stack([rows[y] for y in range(h)], dim=2)
+
+
+def check_sgm_options(P1: float, P2: float, paths: int, p2_alpha: float) -> tuple[tuple[int, int], ...]:
+    """Validate the penalties and the path count; returns :func:`sgm_directions` of ``paths``."""
+    directions = sgm_directions(paths)
+    if not (P1 >= 0 and P2 >= P1):
+        raise StereoInputError(f"P1/P2: expected 0 <= P1 <= P2, got P1={P1}, P2={P2}")
+    if p2_alpha < 0:
+        raise StereoInputError(f"p2_alpha: expected >= 0, got {p2_alpha}")
+    return directions
+
+
+def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide: bool = True):
+    check_cost_volume(cost)
+    directions = check_sgm_options(P1, P2, paths, p2_alpha)
+    if image is not None:
+        if check_guide:
+            check_image(image, "image")
+        b, _, h, w = cost.shape
+        check_shape(image, [str(b), "C", str(h), str(w)], "image")
+    return directions
+
+
+def sgm_aggregate_torch(cost: torch.Tensor, P1: float, P2: float, paths: int = 8,
+                        image: torch.Tensor | None = None, p2_alpha: float = 0.0) -> torch.Tensor:
+    """Torch reference of :func:`sgm_aggregate` (differentiable; slow: one Python step per row/column)."""
+    directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha)
+    b, n, h, w = cost.shape
+    p2 = p2_maps(P1, P2, directions, image, (b, h, w), p2_alpha, cost.dtype, cost.device)
+    total = None
+    for i, (dx, dy) in enumerate(directions):
+        path = _path_torch(cost, dx, dy, float(P1), p2[:, i])
+        total = path if total is None else total + path
+    return total
+
+
+def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, image: torch.Tensor | None = None,
+                  p2_alpha: float = 0.0, backend: str = "auto", *, _guide_checked: bool = False) -> torch.Tensor:
+    """Semi-global aggregation of any cost volume (see module doc).
+
+    Args:
+        cost: :math:`(B, D, H, W)` costs, lower = better.
+        P1: penalty for a disparity change of 1 between path neighbours (cost units).
+        P2: penalty for larger changes (``P2 >= P1``), adapted to ``image`` gradients when given.
+        paths: 4, 8 or 16.
+        image: optional guide :math:`(B, C, H, W)` in [0, 1] (the left image).
+        p2_alpha: strength of the P2 adaptation (0 = constant P2).
+        backend: ``"auto"`` (numba on CPU without gradient, else torch), ``"torch"`` or ``"numba"``.
+        _guide_checked: internal; the caller has already validated ``image`` with ``check_image``.
+
+    Returns:
+        :math:`(B, D, H, W)` aggregated cost ``S = sum_r L_r`` (dtype of ``cost``; the numba backend
+        computes in float32). The numba result is a permuted view of a ``(B, H, W, D)`` buffer.
+    """
+    if backend not in ("auto", "torch", "numba"):
+        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
+    directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide=not _guide_checked)
+    if not use_numba(cost, backend=backend, float32_only=False):  # the kernel computes in float32
+        return sgm_aggregate_torch(cost, P1, P2, paths, image, p2_alpha)
+    b = cost.shape[0]
+    costs = (cost[i].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy() for i in range(b))
+    total = sgm_aggregate_hwd(costs, P1, P2, directions, image, p2_alpha)
+    return total.to(device=cost.device, dtype=cost.dtype)
+
+
+def sgm_aggregate_hwd(costs, P1: float, P2: float, directions, image: torch.Tensor | None,
+                      p2_alpha: float) -> torch.Tensor:
+    """The numba backend of :func:`sgm_aggregate` on ``(H, W, D)`` arrays (arguments already checked).
+
+    Args:
+        costs: an iterable of B C-contiguous ``(H, W, D)`` float32 or uint8 cost arrays (integer costs such
+            as census distances may come as uint8: the same result, a quarter of the memory traffic); each
+            is consumed before the next is taken, so a generator keeps one converted volume at a time.
+        directions: from :func:`sgm_directions`; image: the guide :math:`(B, C, H, W)` or None.
+
+    Returns:
+        :math:`(B, D, H, W)` float32 CPU, a permuted view of a ``(B, H, W, D)`` buffer.
+    """
+    from stereonet.kernels.sgm import sgm_numba_hwd
+
+    dirs = np.asarray(directions, dtype=np.int64)
+    outs = []
+    for i, c_hwd in enumerate(costs):
+        h, w = c_hwd.shape[:2]
+        if image is None:
+            p2 = p2_maps_numpy(P1, P2, directions, np.zeros((h, w), np.float32), 0.0)
+        else:
+            p2 = p2_maps_numpy(P1, P2, directions, grey_numpy(image[i]), p2_alpha)
+        outs.append(torch.from_numpy(sgm_numba_hwd(c_hwd, np.float32(P1), p2, dirs)))
+        del c_hwd
+    total = torch.stack(outs) if len(outs) > 1 else outs[0][None]  # BxHxWxD
+    return total.permute(0, 3, 1, 2)  # BxDxHxW

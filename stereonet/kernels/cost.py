@@ -1,0 +1,185 @@
+"""Numba CPU helpers of the cost volumes: box means of ``(H, W, C)`` float32 images, census codes and the
+out-of-image fill of ``(H, W, D)`` volumes, the learned-feature cost and the mix of two volumes. The volumes themselves are computed row by row by
+:mod:`stereonet.kernels.block`. Rows (or columns) run in parallel with ``prange``.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import prange
+
+
+@numba.njit(cache=True, fastmath=False)
+def _running_mean(src, dst, r):
+    """dst[i, :] = mean of src[max(i - r, 0) : min(i + r, N - 1) + 1, :] (float64 running sums)."""
+    N, D = src.shape
+    acc = np.zeros(D, np.float64)
+    for i in range(min(r, N)):
+        for d in range(D):
+            acc[d] += src[i, d]
+    for i in range(N):
+        if i + r < N:
+            for d in range(D):
+                acc[d] += src[i + r, d]
+        if i - r - 1 >= 0:
+            for d in range(D):
+                acc[d] -= src[i - r - 1, d]
+        n = min(i + r, N - 1) - max(i - r, 0) + 1
+        for d in range(D):
+            dst[i, d] = acc[d] / n
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def box_mean_hwd(vol, window):
+    """In-place mean over the in-image part of a window x window square, per disparity."""
+    H, W, D = vol.shape
+    r = window // 2
+    for x in prange(W):
+        _running_mean(vol[:, x, :].copy(), vol[:, x, :], r)  # HxD column
+    for y in prange(H):
+        _running_mean(vol[y].copy(), vol[y], r)  # WxD row
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def fill_invalid_hwd(vol, fill):
+    """vol[y, x, d] = fill for x < d."""
+    H, W, D = vol.shape
+    for y in prange(H):
+        for x in range(W):
+            for d in range(x + 1, D):
+                vol[y, x, d] = fill
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def census_khw(grey, window, bits_per_word):
+    """Census codes (K, H, W) uint64 of a grey (H, W) image: same bit order as
+    :func:`stereonet.cost.census.census_transform` (row-major neighbours, centre skipped, border replicated).
+    The inner loop runs along x over a border-padded copy of the neighbour row, one neighbour offset at a
+    time (contiguous, vectorised)."""
+    H, W = grey.shape
+    r = window // 2
+    n_bits = window * window - 1
+    K = (n_bits + bits_per_word - 1) // bits_per_word
+    out = np.zeros((K, H, W), np.uint64)
+    for y in prange(H):
+        padded = np.empty(W + 2 * r, grey.dtype)
+        centre = grey[y]
+        bit = 0
+        for dy in range(window):
+            src = grey[min(max(y + dy - r, 0), H - 1)]
+            padded[r:r + W] = src
+            padded[:r] = src[0]
+            padded[r + W:] = src[W - 1]
+            for dx in range(window):
+                if dy == r and dx == r:
+                    continue
+                k = bit // bits_per_word
+                sh = np.uint64(bit - k * bits_per_word)
+                wk = out[k, y]
+                seg = padded[dx:dx + W]
+                for x in range(W):
+                    wk[x] |= np.uint64(seg[x] < centre[x]) << sh
+                bit += 1
+    return out
+
+
+@numba.njit(cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
+def _popcount64(x):
+    """Set bits of a uint64 (SWAR with shifts only, so it vectorises)."""
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    x = x + (x >> np.uint64(8))
+    x = x + (x >> np.uint64(16))
+    x = x + (x >> np.uint64(32))
+    return x & np.uint64(0x7F)
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
+def census_hamming_hwd_u8(codes_l, codes_r, n_disp):
+    """Pixelwise census cost ``(H, W, D)`` uint8 of codes ``(K, H, W)`` uint64: ``vol[y, x, d]`` = Hamming
+    distance of left (y, x) and right (y, x - d) for ``d <= x``; the positions ``x < d`` are left for
+    :func:`fill_triangle_u8` (their value, ``max + 1``, is known only after every row). Also returns the
+    per-row maxima (H,) int64. Rows in parallel; per pixel one loop over a contiguous slice of the reversed
+    right row (vectorised). Distances must fit in uint8 (at most 254 bits, i.e. census windows <= 15)."""
+    K, H, W = codes_l.shape
+    D = n_disp
+    vol = np.empty((H, W, D), np.uint8)
+    row_max = np.zeros(H, np.int64)
+    for y in prange(H):
+        rev = np.empty((K, W), np.uint64)  # rev[k, j] = codes_r[k, y, W - 1 - j]: right[x - d] = rev[W - 1 - x + d]
+        acc = np.empty(D, np.int64)
+        for k in range(K):
+            for j in range(W):
+                rev[k, j] = codes_r[k, y, W - 1 - j]
+        m = 0
+        for x in range(W):
+            nv = min(x + 1, D)
+            base = W - 1 - x
+            cl = codes_l[0, y, x]
+            r0 = rev[0, base:base + nv]
+            for d in range(nv):
+                acc[d] = np.int64(_popcount64(cl ^ r0[d]))
+            for k in range(1, K):
+                cl = codes_l[k, y, x]
+                rk = rev[k, base:base + nv]
+                for d in range(nv):
+                    acc[d] += np.int64(_popcount64(cl ^ rk[d]))
+            o = vol[y, x]
+            for d in range(nv):
+                v = acc[d]
+                m = max(m, v)
+                o[d] = np.uint8(v)
+        row_max[y] = m
+    return vol, row_max
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
+def fill_triangle_u8(vol, fill):
+    """vol[y, x, d] = fill for x < d (uint8)."""
+    H, W, D = vol.shape
+    for y in prange(H):
+        for x in range(min(W, D)):
+            for d in range(x + 1, D):
+                vol[y, x, d] = fill
+
+
+# fastmath: only reassociation and contraction (FMA), so the dot product over features vectorises; no
+# 'nnan'/'ninf', so NaN and inf inputs keep their meaning. It changes the sum's rounding (~1e-7), nothing else.
+@numba.njit(parallel=True, cache=True, fastmath={"reassoc", "contract"})
+def feature_cost_hwd(feat_l, feat_r, n_disp, invalid):
+    """Learned matching cost ``(H, W, D)`` float32 of features ``(H, W, F)`` float32: ``vol[y, x, d] =
+    1 - sum_f feat_l[y, x, f] * feat_r[y, x - d, f]`` for ``d <= x``, ``invalid`` for ``x < d``. Rows in
+    parallel; each dot product runs over the contiguous feature axis (vectorised)."""
+    H, W, F = feat_l.shape
+    D = n_disp
+    vol = np.empty((H, W, D), np.float32)
+    one = np.float32(1.0)
+    for y in prange(H):
+        for x in range(W):
+            nv = min(x + 1, D)
+            a = feat_l[y, x]
+            o = vol[y, x]
+            for d in range(nv):
+                b = feat_r[y, x - d]
+                acc = np.float32(0.0)
+                for f in range(F):
+                    acc += a[f] * b[f]
+                o[d] = one - acc
+            for d in range(nv, D):
+                o[d] = invalid
+    return vol
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # no fastmath: the sentinels stay exact
+def mix_costs_hwd(own, other, w_own, w_other):
+    """``w_own * own + w_other * other`` of two ``(H, W, D)`` volumes (own: any numeric dtype, e.g. the uint8
+    census volume; other: float32), as float32 (the same numbers as the float32 torch expression)."""
+    H, W, D = own.shape
+    out = np.empty((H, W, D), np.float32)
+    for y in prange(H):
+        for x in range(W):
+            for d in range(D):
+                out[y, x, d] = w_own * np.float32(own[y, x, d]) + w_other * other[y, x, d]
+    return out

@@ -1,0 +1,249 @@
+"""Numba kernel of the local selection on an ``(H, W, D)`` float32 volume: WTA, uniqueness, sub-pixel
+refinement and the right-reference WTA in one pass (same rules as :mod:`stereonet.select.wta`,
+:mod:`stereonet.select.subpixel` and :func:`stereonet.select.lr_check.wta_right`, tested equal).
+
+Every kernel is compiled with ``fastmath=False``: the minima start at +inf sentinels and NaN costs must
+never win, which fastmath's no-inf/no-NaN assumptions would let the compiler break."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import prange
+
+
+@numba.njit(inline="always", fastmath=False)
+def wta_right_row(row, out):
+    """Right-reference WTA of one row (W, D) into out (W,), ties to the smallest disparity.
+
+    Disparity-outer loop over the diagonal ``row[xr + d, d]`` (a strided slice of the flat row), branch-free
+    inner loop over xr (vectorised)."""
+    W, D = row.shape
+    flat = row.ravel()
+    best = row[:, 0].copy()
+    out[:] = 0
+    for d in range(1, min(D, W)):
+        diag = flat[d * (D + 1)::D]  # diag[xr] = row[xr + d, d]
+        fd = np.float32(d)
+        for xr in range(W - d):
+            v = diag[xr]
+            b = best[xr]
+            take = v < b
+            best[xr] = v if take else b
+            out[xr] = fd if take else out[xr]
+
+
+@numba.njit(inline="always", fastmath=False)
+def is_unique(best, second, keep):
+    """The uniqueness rule of :func:`stereonet.select.wta.uniqueness_mask`: best <= (1 - ratio) * second."""
+    return best <= keep * second
+
+
+@numba.njit(inline="always", fastmath=False)
+def subpixel_offset(best, cm, cp, method):
+    """Offset in [-0.5, 0.5] of the parabola (method 1) or equiangular (2) fit through c(d-1), c(d), c(d+1);
+    0 for a degenerate fit."""
+    if method == 1:
+        den = np.float32(2.0) * (cm - np.float32(2.0) * best + cp)
+    else:
+        den = np.float32(2.0) * max(cm - best, cp - best)
+    off = np.float32(0.0)
+    if den > 0:
+        off = (cm - cp) / den
+        off = min(max(off, np.float32(-0.5)), np.float32(0.5))
+    return off
+
+
+@numba.njit(inline="always", fastmath=False)
+def lr_check_row(disp_int, disp_right, lr_ok, lr_tol):
+    """LR check of one row: integer left disparities (W,) against the right-reference row (W,)."""
+    for x in range(disp_int.shape[0]):
+        xr = x - int(disp_int[x])
+        if xr < 0:
+            lr_ok[x] = False
+        else:
+            lr_ok[x] = abs(disp_int[x] - disp_right[xr]) <= lr_tol
+
+
+def select_hwd(vol, method, ratio, lr_tol):
+    """Args: vol (H, W, D) float32; method 0 = none, 1 = parabola, 2 = equiangular; ratio in [0, 1);
+    lr_tol: LR-check tolerance (< 0 = no check).
+
+    Returns: disp (H, W) float32 (refined), min_cost (H, W) float32, unique (H, W) bool,
+    disp_right (H, W) float32 (integer-valued right-reference WTA, ties to the smallest disparity),
+    lr_ok (H, W) bool (:func:`stereonet.select.lr_check.left_right_check` of the integer WTA disparity
+    and disp_right, i.e. before sub-pixel refinement). Each row is transposed to (D, W) and selected by
+    :func:`select_row_t` (:func:`_select_kernel` without the confidence).
+    """
+    return _select_kernel(vol, method, ratio, lr_tol, np.float32(0.0), False)[:5]
+
+
+def select_confidence_hwd(vol, method, ratio, lr_tol, eps):
+    """:func:`select_hwd` plus the cost-margin confidence (H, W) float32 of
+    :func:`stereonet.select.confidence.cost_margin_confidence` with ``exclude=1``, from the same pass:
+    its best cost is the WTA minimum and its competitor the uniqueness test's second best (both over
+    ``|d - best| > 1``). Pixels whose best or second is not finite get the general rule
+    (:func:`_margin_scalar`), so the confidence equals the separate kernel's on any volume.
+
+    Returns: ``(disp, min_cost, unique, disp_right, lr_ok, confidence)``.
+    """
+    return _select_kernel(vol, method, ratio, lr_tol, np.float32(eps), True)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _margin_scalar(c, exclude, eps):
+    """:func:`stereonet.kernels.confidence.cost_margin_hwd` of one cost curve (D,): the general
+    rule (NaN and +inf never win), for the rare pixels where the selection's best or second is not finite."""
+    inf = np.float32(np.inf)
+    c1 = inf
+    i1 = -1
+    for d in range(c.shape[0]):
+        if c[d] < c1:
+            c1 = c[d]
+            i1 = d
+    if i1 < 0:
+        return np.float32(0.0)
+    c2 = inf
+    for d in range(c.shape[0]):
+        if abs(d - i1) > exclude and c[d] < c2:
+            c2 = c[d]
+    if c2 == inf:
+        return np.float32(1.0)
+    m = (c2 - c1) / (abs(c2) + eps)
+    return min(max(m, np.float32(0.0)), np.float32(1.0))
+
+
+# fastmath=False: +inf is the "no competitor" sentinel and NaN must never win (see _confidence_numba)
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf):
+    """The one selection pass of :func:`select_hwd` and (``with_conf``) :func:`select_confidence_hwd`;
+    returns ``(disp, min_cost, unique, disp_right, lr_ok, confidence)`` (confidence zeros without it)."""
+    H, W, D = vol.shape
+    disp = np.empty((H, W), np.float32)
+    min_cost = np.empty((H, W), np.float32)
+    unique = np.ones((H, W), np.bool_)
+    disp_right = np.zeros((H, W), np.float32)
+    lr_ok = np.ones((H, W), np.bool_)
+    conf = np.zeros((H, W), np.float32)
+    keep = np.float32(1.0 - ratio)
+    inf = np.float32(np.inf)
+    n_chunks = min(H, 64)  # row chunks (per-chunk buffers), plenty for any thread count
+    for chunk in prange(n_chunks):
+        T = np.empty((D, W), np.float32)
+        dint = np.empty(W, np.float32)
+        best = np.empty(W, np.float32)
+        bi = np.empty(W, np.int64)
+        second = np.empty(W, np.float32)
+        best_r = np.empty(W, np.float32)
+        strip = np.zeros((1, 1, 4), np.float32)
+        for y in range(chunk * H // n_chunks, (chunk + 1) * H // n_chunks):
+            transpose_row(vol[y], T)
+            # the second best is needed for the confidence even without a uniqueness test
+            select_row_t(T, y, method, keep, ratio > 0 or with_conf, False, disp, min_cost, unique, dint, strip,
+                         disp_right, best, bi, second, best_r)
+            if with_conf and ratio <= 0:
+                unique[y] = True
+            if lr_tol >= 0:
+                lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
+            if not with_conf:
+                continue
+            for x in range(W):
+                c1 = best[x]
+                c2 = second[x]
+                if not (np.isfinite(c1) and (np.isfinite(c2) or c2 == inf)):
+                    conf[y, x] = _margin_scalar(vol[y, x], 1, eps)
+                elif c2 == inf:
+                    conf[y, x] = 1.0
+                else:
+                    m = (c2 - c1) / (abs(c2) + eps)
+                    conf[y, x] = min(max(m, np.float32(0.0)), np.float32(1.0))
+    return disp, min_cost, unique, disp_right, lr_ok, conf
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def wta_right_hwd(vol):
+    """Right-reference WTA (H, W) float32 of a left-reference (H, W, D) volume, ties to the smallest d."""
+    H, W, D = vol.shape
+    disp_right = np.zeros((H, W), np.float32)
+    for y in prange(H):
+        wta_right_row(vol[y], disp_right[y])
+    return disp_right
+
+
+@numba.njit(cache=True, fastmath=False)
+def transpose_row(row, T):
+    """T[d, x] = row[x, d] for a (W, D) cost row (strided stores that stay in L1)."""
+    W, D = row.shape
+    for x in range(W):
+        r = row[x]
+        for d in range(D):
+            T[d, x] = r[d]
+
+
+@numba.njit(cache=True, fastmath=False)
+def select_row_t(T, y, method, keep, use_unique, in_image_only, disp, min_cost, unique, disp_int, strip,
+                 disp_right, best, bi, second, best_r):
+    """Selection of one cost row given transposed, ``T`` (D, W): every loop runs along x (contiguous,
+    branch-free, vectorised). Rules of :func:`select_hwd` (first minimum, uniqueness over |d - bi| > 1,
+    sub-pixel fit) and :func:`wta_right_row`.
+
+    ``in_image_only``: only d <= x are candidates (the costs at d > x, outside the right image, are not
+    final yet): pixels x < D - 1 get their uniqueness/sub-pixel inputs in ``strip[y, x]`` (second best in
+    the image, c(bi - 1), c(bi + 1) if in the image, bi) for a later pass; otherwise (a filled volume)
+    every d is a candidate and every pixel is final. disp_int (W,) and the scratch rows best, bi (int64),
+    second, best_r (W,) are per-thread buffers.
+    """
+    D, W = T.shape
+    best[:] = T[0]
+    bi[:] = 0
+    for d in range(1, D):
+        lo = d if in_image_only else 0
+        t = T[d, lo:]
+        b = best[lo:]
+        k = bi[lo:]
+        for x in range(W - lo):
+            v = t[x]
+            take = v < b[x]
+            b[x] = v if take else b[x]
+            k[x] = d if take else k[x]
+    if use_unique:
+        second[:] = np.float32(np.inf)
+        for d in range(D):
+            lo = d if in_image_only else 0
+            t = T[d, lo:]
+            sc = second[lo:]
+            k = bi[lo:]
+            for x in range(W - lo):
+                far = (d + 1 < k[x]) | (d > k[x] + 1)
+                sc[x] = min(sc[x], t[x]) if far else sc[x]
+    for x in range(W):
+        nv = min(x + 1, D) if in_image_only else D
+        bx = bi[x]
+        bv = best[x]
+        min_cost[y, x] = bv
+        disp_int[x] = bx
+        cm = T[bx - 1, x] if bx > 0 else np.float32(0.0)
+        cp = T[bx + 1, x] if bx + 1 < nv else np.float32(0.0)
+        if nv == D:
+            if use_unique:
+                unique[y, x] = is_unique(bv, second[x], keep)
+            off = np.float32(0.0)
+            if method > 0 and 0 < bx < D - 1:
+                off = subpixel_offset(bv, cm, cp, method)
+            disp[y, x] = np.float32(bx) + off
+        else:
+            strip[y, x, 0] = second[x]
+            strip[y, x, 1] = cm
+            strip[y, x, 2] = cp
+            strip[y, x, 3] = bx
+    # right-reference WTA: candidates of right pixel xr are T[d, xr + d] (contiguous in xr)
+    best_r[:] = T[0]
+    out = disp_right[y]
+    out[:] = 0
+    for d in range(1, min(D, W)):
+        t = T[d, d:]
+        for xr in range(W - d):
+            v = t[xr]
+            take = v < best_r[xr]
+            best_r[xr] = v if take else best_r[xr]
+            out[xr] = np.float32(d) if take else out[xr]

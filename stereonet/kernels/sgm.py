@@ -1,0 +1,196 @@
+"""Numba kernels of the SGM path recurrence (see :mod:`stereonet.aggregate.sgm` for the maths).
+
+Layout ``(H, W, D)`` float32 so the inner loop over disparities is contiguous (and vectorised). The
+directions are computed in two sweeps over the rows, top-down (left-to-right, and every direction with
+dy > 0) and bottom-up (the rest), so each sweep reads every cost row once and writes every S row once;
+the two sweeps run concurrently on two threads without any barrier (which matters on a busy 2-core
+machine), each into its own buffer, and are added at the end. Every path cost is computed with the
+same float32 operations as the torch reference (``C + (t - m)``), so the per-path costs are identical and
+the sums differ only by the order of additions (tested bit for bit per path). The cost may be float32 or
+uint8 (census distances: :func:`stereonet.cost.volume.census_pixel_volumes_u8`).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
+import numpy as np
+from numba import prange
+
+_INF = np.float32(np.inf)
+
+
+# fastmath=False on every kernel here: the padding of the path rows and the start of the minima are +inf
+# sentinels (so no "ninf"/"nnan"), and "reassoc" would let the compiler rewrite ``c + (t - m)`` as
+# ``(c + t) - m``, which changes result bits against the torch reference (the old fastmath=True did, by
+# ~1e-4 on Cones' aggregated costs). Nothing here needs fastmath to vectorise: the recurrence is
+# elementwise, and the minimum over disparities is an integer min reduction over the float bits
+# (:func:`min_key`), which the compiler vectorises without fast-math flags.
+
+
+@numba.njit(fastmath=False, inline="always")
+def _min(a, b):
+    """``a if a < b else b``: a compare and a select (the builtin ``min`` adds NaN tests without fastmath,
+    which stop the loops from vectorising)."""
+    return a if a < b else b
+
+
+@numba.njit(fastmath=False, inline="always")
+def _step(c_row, prev, m, P1, pen2, out, s_row, assign):
+    """out = c + (min(prev[d], prev[d±1] + P1, m + pen2) - m); s += out.
+
+    ``prev``/``out`` are padded: index ``d + 1`` holds disparity ``d``, indices 0 and D + 1 hold +inf, so
+    the loop is branch-free and vectorises. The minimum of ``out`` is taken by :func:`min_key` afterwards."""
+    n = c_row.shape[0]
+    big = m + pen2
+    for d in range(n):
+        t = _min(_min(prev[d + 1], prev[d] + P1), _min(prev[d + 2] + P1, big))
+        out[d + 1] = np.float32(c_row[d]) + (t - m)
+    if assign:  # the first direction into a fresh (uninitialised) S: S = L (0 + L would give the same)
+        for d in range(n):
+            s_row[d] = out[d + 1]
+    else:
+        for d in range(n):
+            s_row[d] += out[d + 1]
+
+
+@numba.njit(fastmath=False, inline="always")
+def _key(k):
+    """Order-preserving int32 key of a float32's bits (an involution): non-negative floats keep their bits,
+    negative ones get the lower 31 bits flipped, so signed integer order = float order (-0 < +0, NaN above
+    +inf)."""
+    return k ^ ((k >> np.int32(31)) & np.int32(0x7FFFFFFF))
+
+
+@numba.njit(fastmath=False, inline="always")
+def min_key(bits):
+    """Key of the minimum of float32 values given as their int32 bits (1-D, non-empty): an integer min
+    reduction, which vectorises without fastmath (a float min reduction would need "nnan")."""
+    mi = np.int32(0x7FFFFFFF)
+    for d in range(bits.shape[0]):
+        mi = min(mi, _key(bits[d]))
+    return mi
+
+
+@numba.njit(fastmath=False, inline="always")
+def min_of(a):
+    """min of a 1-D float array with eight independent accumulators (no serial dependency chain; min is
+    exact, so the result equals the plain loop's for non-NaN input)."""
+    n = a.shape[0]
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = _INF
+    i = 0
+    while i + 8 <= n:
+        m0 = _min(m0, np.float32(a[i]))
+        m1 = _min(m1, np.float32(a[i + 1]))
+        m2 = _min(m2, np.float32(a[i + 2]))
+        m3 = _min(m3, np.float32(a[i + 3]))
+        m4 = _min(m4, np.float32(a[i + 4]))
+        m5 = _min(m5, np.float32(a[i + 5]))
+        m6 = _min(m6, np.float32(a[i + 6]))
+        m7 = _min(m7, np.float32(a[i + 7]))
+        i += 8
+    while i < n:
+        m0 = _min(m0, np.float32(a[i]))
+        i += 1
+    return _min(_min(_min(m0, m1), _min(m2, m3)), _min(_min(m4, m5), _min(m6, m7)))
+
+
+@numba.njit(fastmath=False, nogil=True, cache=True)
+def _sweep(C, S, P1, p2, dirs, downward, fresh):
+    """One sweep over the rows (top-down if ``downward`` else bottom-up) computing every direction of
+    ``dirs`` (G, 2) at once: each pixel's cost row is read once and its S row written once.
+
+    Directions with ``dy != 0`` must point along the sweep; a horizontal one must point along the column
+    order of the sweep (left-to-right top-down, right-to-left bottom-up). ``L``/``M`` keep three rows of
+    padded path costs and their minima per direction (enough for the |dy| = 2 knight moves)."""
+    H, W, D = C.shape
+    G = dirs.shape[0]
+    # path rows and minima as flat (G * 3 * W) rows: row (g * 3 + slot) * W + x holds pixel x of the path
+    # row in ring slot ``slot`` (one 2-D index per access instead of 3-D ones, bases hoisted per image row)
+    L = np.full((G * 3 * W, D + 2), _INF, np.float32)
+    M = np.empty(G * 3 * W, np.float32)
+    L_bits = L.view(np.int32)  # the same memory, for the integer minimum
+    box = np.empty(1, np.int32)
+    box_f = box.view(np.float32)
+    C2 = C.reshape(H * W, D)
+    S2 = S.reshape(H * W, D)
+    out_base = np.empty(G, np.int64)
+    prev_base = np.empty(G, np.int64)
+    row_ok = np.empty(G, np.bool_)
+    for step in range(H):
+        y = step if downward else H - 1 - step
+        for g in range(G):
+            yp = y - dirs[g, 1]
+            row_ok[g] = 0 <= yp < H
+            out_base[g] = (g * 3 + y % 3) * W
+            prev_base[g] = (g * 3 + (yp % 3 if row_ok[g] else 0)) * W - dirs[g, 0]
+        for k in range(W):
+            x = k if downward else W - 1 - k
+            c_row = C2[y * W + x]
+            s_row = S2[y * W + x]
+            for g in range(G):
+                xp = x - dirs[g, 0]
+                o = out_base[g] + x
+                out = L[o]
+                if row_ok[g] and 0 <= xp < W:
+                    q = prev_base[g] + x
+                    _step(c_row, L[q], M[q], P1, p2[g, y, x], out, s_row, fresh and g == 0)
+                    box[0] = _key(min_key(L_bits[o, 1:D + 1]))
+                    M[o] = box_f[0]
+                else:
+                    for d in range(D):
+                        v = np.float32(c_row[d])
+                        out[d + 1] = v
+                        s_row[d] = v if fresh and g == 0 else s_row[d] + v
+                    M[o] = min_of(c_row)
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # exact float32 adds
+def _add_into(a, b):
+    H = a.shape[0]
+    for y in prange(H):
+        a[y] += b[y]
+
+
+def sweep_groups(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the directions of the top-down sweep (dy > 0, or dy = 0 and dx > 0) and the bottom-up one."""
+    down = (dirs[:, 1] > 0) | ((dirs[:, 1] == 0) & (dirs[:, 0] > 0))
+    return np.nonzero(down)[0], np.nonzero(~down)[0]
+
+
+CONCURRENT_MAX_BYTES = 256 * 2**20  # above this float32 volume size the two sweeps share one buffer (sequential)
+
+
+def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Aggregated cost ``S`` (H, W, D) float32 of a cost ``(H, W, D)`` float32 or uint8 (integer costs such
+    as census Hamming distances: a quarter of the memory traffic, the same float32 path costs).
+
+    The directions split into a top-down and a bottom-up sweep that run concurrently on two threads
+    (numba releases the GIL), each into its own buffer, added at the end; for volumes above
+    :data:`CONCURRENT_MAX_BYTES` (e.g. KITTI at 192 disparities) they run one after the other into a single
+    buffer, so the peak memory stays at two volumes (cost + aggregate).
+
+    Args:
+        cost_hwd: C-contiguous float32 or uint8 (H, W, D).
+        P1: float32 scalar.
+        p2: float32 (R, H, W) per-direction P2 maps.
+        dirs: int64 (R, 2) ``(dx, dy)`` directions.
+    """
+    P1 = np.float32(P1)
+    p2 = np.ascontiguousarray(p2, dtype=np.float32)
+    down, up = sweep_groups(dirs)
+    groups = [(np.ascontiguousarray(p2[g]), np.ascontiguousarray(dirs[g]), flag)
+              for g, flag in ((down, True), (up, False)) if g.size]
+    if len(groups) == 1 or numba.get_num_threads() == 1 or 4 * cost_hwd.size > CONCURRENT_MAX_BYTES:
+        total = np.empty(cost_hwd.shape, np.float32)  # one buffer, the sweeps one after the other
+        for i, (p2g, dg, flag) in enumerate(groups):
+            _sweep(cost_hwd, total, P1, p2g, dg, flag, i == 0)
+        return total
+    buffers = [np.empty(cost_hwd.shape, np.float32) for _ in groups]  # each written first by its sweep
+    with ThreadPoolExecutor(max_workers=len(groups)) as pool:
+        list(pool.map(lambda job: _sweep(cost_hwd, job[0], P1, *job[1], True), zip(buffers, groups)))
+    total = buffers[0]
+    for other in buffers[1:]:
+        _add_into(total, other)
+    return total

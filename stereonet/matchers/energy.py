@@ -1,0 +1,147 @@
+"""Registered global matchers ``dp``, ``bp`` and ``graphcut`` (one signature: ``fn(left, right, max_disp)``).
+
+Each builds a cost volume with :func:`stereonet.cost.build_cost_volume` (default AD-Census on a 3×3
+window: robust to the radiometric differences of real photos, see :mod:`stereonet.cost.volume`), runs its
+optimizer and returns a :class:`~stereonet.types.StereoOutput` with the data cost volume attached.
+Defaults were tuned on the Middlebury pairs of ``../shared/data`` (see ``scripts/bench_global.py``).
+
+* ``dp``: the three-case scanline DP (:func:`stereonet.aggregate.dp.scanline_dp`); left-occluded pixels are
+  ``valid = False``, filled from their left neighbour on the scanline, and labelled in
+  ``extras["occlusion"]``. ``mode="energy"`` runs the per-scanline energy DP instead.
+* ``bp``: coarse-to-fine min-sum loopy BP (:func:`stereonet.aggregate.bp.belief_propagation`) with
+  contrast-weighted truncated-linear smoothness; ``extras["beliefs"]`` holds the final beliefs.
+* ``graphcut``: α-expansion (:func:`stereonet.aggregate.graphcut.alpha_expansion`) from the WTA labels,
+  same energy as ``bp``; ``extras["energy"]`` holds the final energy per batch item.
+
+``bp``, ``graphcut`` and ``dp`` with ``mode="energy"`` do not model occlusions in their energy; the pixels their
+own map declares hidden in the right view (a pixel further right lands on the same right pixel or beyond it,
+:func:`~stereonet.aggregate.mrf.left_occlusions_from_disparity`) are returned ``valid = False``,
+labelled in ``extras["occlusion"]`` and filled from their left neighbour like ``dp``'s.
+
+Sub-pixel disparities come from a parabola fit on the data cost (``dp``, ``graphcut``) or on the beliefs
+(``bp``) around the integer optimum (``subpixel=False`` keeps integers).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from stereonet.aggregate.bp import belief_propagation
+from stereonet.aggregate.dp import energy_dp, fill_left_occluded, scanline_dp
+from stereonet.aggregate.graphcut import alpha_expansion
+from stereonet.aggregate.mrf import contrast_edge_weights, left_occlusions_from_disparity
+from stereonet.checks import StereoInputError, check_stereo_inputs
+from stereonet.matchers import register
+from stereonet.types import StereoOutput
+
+DEFAULT_COST = "census_ad"
+DEFAULT_WINDOW = 3
+
+
+def _cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
+                 cost_options: dict | None) -> torch.Tensor:
+    from stereonet.cost import build_cost_volume
+
+    return build_cost_volume(left, right, max_disp, cost=cost, window=window, **(cost_options or {}))
+
+
+def _refine(volume: torch.Tensor, disp: torch.Tensor, subpixel: bool) -> torch.Tensor:
+    if not subpixel:
+        return disp
+    from stereonet.select.subpixel import subpixel_refine
+
+    return subpixel_refine(volume, disp)
+
+
+def _occlusion_filled(volume: torch.Tensor, labels: torch.Tensor, subpixel: bool
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Integer labels -> (disparity, valid, occlusion): pixels the map itself declares left-occluded
+    (:func:`~stereonet.aggregate.mrf.left_occlusions_from_disparity`) are invalid and take the
+    disparity of their nearest visible left neighbour (the textbook scanline fill); the rest are refined."""
+    occlusion = left_occlusions_from_disparity(labels)
+    disp = fill_left_occluded(_refine(volume, labels, subpixel), occlusion)
+    return disp, ~occlusion, occlusion
+
+
+@register("dp", kind="classical",
+          description="Scanline DP (Cox et al.): match / left-occluded / right-occluded moves with the ordering "
+                      "constraint on an AD-Census cost; occlusions labelled and filled")
+def dp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = DEFAULT_COST,
+               window: int = 5, occlusion_cost: float = 0.6, mode: str = "occlusion",
+               smoothness: float = 0.3, truncation: float = 2.0, subpixel: bool = True,
+               cost_options: dict | None = None) -> StereoOutput:
+    """Scanline dynamic programming. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
+
+    Args:
+        cost, window, cost_options: the cost volume (see :func:`stereonet.cost.build_cost_volume`).
+        occlusion_cost: cost of one occluded pixel in ``mode="occlusion"`` (on the scale of the cost).
+        mode: ``"occlusion"`` (three-case DP) or ``"energy"`` (Viterbi with ``smoothness``·min(|Δd|, ``truncation``)).
+        subpixel: parabola refinement on the data cost.
+    """
+    if mode not in ("occlusion", "energy"):
+        raise StereoInputError(f"mode: expected 'occlusion' or 'energy', got {mode!r}")
+    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
+    extras: dict[str, torch.Tensor] = {}
+    if mode == "occlusion":
+        res = scanline_dp(volume, occlusion_cost)
+        valid = ~res.occlusion
+        disp = torch.where(valid, _refine(volume, res.disparity, subpixel), res.disparity)
+        extras["occlusion"] = res.occlusion
+        extras["energy"] = res.energy
+    else:  # "energy"
+        weights, _ = contrast_edge_weights(left)
+        res = energy_dp(volume, smoothness, truncation, weights=weights)
+        disp, valid, extras["occlusion"] = _occlusion_filled(volume, res.disparity, subpixel)
+        extras["energy"] = res.energy
+    return StereoOutput(disp, valid, cost_volume=volume, extras=extras)
+
+
+def _mrf_problem(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
+                 cost_options: dict | None, contrast_threshold: float, contrast_factor: float
+                 ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+    """Checked inputs -> (cost volume, weights_right, weights_down) of the MRF shared by ``bp`` and ``graphcut``."""
+    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
+    if contrast_factor == 1.0:
+        return volume, None, None
+    return (volume, *contrast_edge_weights(left, contrast_threshold, contrast_factor))
+
+
+@register("bp", kind="classical",
+          description="Coarse-to-fine min-sum loopy belief propagation (Felzenszwalb-Huttenlocher), 4-connected, "
+                      "contrast-weighted truncated-linear smoothness on an AD-Census cost")
+def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = DEFAULT_COST,
+               window: int = DEFAULT_WINDOW, smoothness: float = 0.3, truncation: float = 4.0,
+               iterations: int = 5, levels: int = 5, contrast_threshold: float = 0.03,
+               contrast_factor: float = 3.0, subpixel: bool = True, cost_options: dict | None = None
+               ) -> StereoOutput:
+    """Loopy BP. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
+
+    The smoothness weight is multiplied by ``contrast_factor`` across edges whose colour difference is below
+    ``contrast_threshold`` (see :func:`stereonet.aggregate.mrf.contrast_edge_weights`).
+    """
+    volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
+                                  contrast_factor)
+    res = belief_propagation(volume, smoothness, truncation, iterations, levels, wr, wd)
+    disp, valid, occlusion = _occlusion_filled(res.beliefs, res.disparity, subpixel)
+    return StereoOutput(disp, valid, cost_volume=volume,
+                        extras={"beliefs": res.beliefs, "energy": res.energy, "occlusion": occlusion})
+
+
+@register("graphcut", kind="classical",
+          description="Graph cuts: alpha-expansion (Boykov-Veksler-Zabih) with PyMaxflow, contrast-weighted "
+                      "truncated-linear smoothness on an AD-Census cost, started from WTA")
+def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = DEFAULT_COST,
+                     window: int = DEFAULT_WINDOW, smoothness: float = 0.3, truncation: float = 2.0,
+                     cycles: int = 1, contrast_threshold: float = 0.03, contrast_factor: float = 3.0,
+                     subpixel: bool = True, cost_options: dict | None = None) -> StereoOutput:
+    """α-expansion. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
+
+    ``cycles`` passes over the ``max_disp + 1`` labels, each one max-flow on an ``H·W``-node grid graph.
+    """
+    volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
+                                  contrast_factor)
+    res = alpha_expansion(volume, smoothness, truncation, cycles, None, wr, wd)
+    disp, valid, occlusion = _occlusion_filled(volume, res.disparity, subpixel)
+    return StereoOutput(disp, valid, cost_volume=volume, extras={"energy": res.energy, "occlusion": occlusion})

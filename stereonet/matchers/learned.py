@@ -1,0 +1,278 @@
+"""Learned matchers in the registry: ``siamese``, ``siamese-sgm``, ``dispnet``, ``smd``.
+
+Each loads its network from ``stereonet/weights/<name>.pt`` (or ``.ckpt``) the first time it runs (cached per file);
+``checkpoint=PATH`` overrides. Missing files, checkpoints of another model and tensors of the wrong shape
+raise errors that name the file (see :mod:`stereonet.models.weights`). No Lightning import here.
+
+Backends: ``backend="torch"`` (default) runs the network in torch; ``backend="onnx"`` runs its ONNX export
+in onnxruntime on the CPU, from ``onnx_model=PATH`` (written by ``python -m stereonet.export onnx``) or, without
+one, exported in memory from the weights the first time (cached per file; nothing is written or downloaded).
+Only the network's forward pass is swapped (:func:`network_graph`, the graphs of :mod:`stereonet.models.graphs`):
+the rest of each matcher is the same code for both backends.
+
+Disparities beyond the trained range: DispNet and SMD correlate up to the ``max_disp`` they were trained
+with (``net.max_disp``, stored in the weights file; 96 px for the shipped ones). When the requested
+``max_disp`` is larger, the pair is downscaled by ``trained / max_disp`` before the network runs and the
+disparity is upscaled back (so KITTI at full width, ~200 px, runs at about half its size). The
+Siamese matchers have no such limit (the cost volume spans ``max_disp``).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from stereonet.checks import StereoInputError
+from stereonet.matchers import register
+from stereonet.models.dispnet import run_padded
+from stereonet.models.graphs import NetworkGraph, OnnxGraph
+from stereonet.models.layers import InputPadder, resize_disparity
+from stereonet.models.siamese import siamese_cost_volume
+from stereonet.models.smd import MixtureParams, mixture_outputs, padded_query_grid
+from stereonet.models.weights import default_weights_path, load_weights
+from stereonet.types import StereoOutput
+
+BACKENDS = ("torch", "onnx")
+
+
+@functools.lru_cache(maxsize=8)
+def _cached(path: str, mtime: float, expected: str):
+    return load_weights(path, expected)[0]
+
+
+NETWORK_OF = {"dispnet": "dispnet", "smd": "smd", "siamese": "siamese", "siamese-sgm": "siamese",
+              "siamese-census-sgm": "siamese"}
+
+
+def weights_available(name: str) -> bool:
+    """Whether the shipped weights of learned matcher ``name`` exist (a name registered elsewhere, e.g.
+    ``siamese-foo``: the weights of the network its name starts with)."""
+    return default_weights_path(NETWORK_OF.get(name, name.split("-")[0])).is_file()
+
+
+def load_network(expected: str, checkpoint: str | os.PathLike | None = None) -> torch.nn.Module:
+    """The network for matcher family ``expected`` from ``checkpoint`` or the shipped weights (cached)."""
+    path = Path(checkpoint) if checkpoint is not None else default_weights_path(expected)
+    mtime = path.stat().st_mtime if path.is_file() else -1.0
+    if mtime < 0:
+        load_weights(path, expected)  # raises the FileNotFoundError with the message
+    return _cached(str(path), mtime, expected)
+
+
+@functools.lru_cache(maxsize=8)
+def _torch_graph(network: str, net: torch.nn.Module) -> NetworkGraph:
+    """One graph per loaded network, so its per-device copies (NetworkGraph._net_on) are made once."""
+    return NetworkGraph(network, net)
+
+
+def methods_of(network: str) -> list[str]:
+    """The registered matchers that run ``network`` ("siamese" -> siamese, siamese-sgm, siamese-census-sgm)."""
+    return [m for m, n in NETWORK_OF.items() if n == network]
+
+
+def _file_key(path: str | os.PathLike) -> tuple[str, float]:
+    path = Path(path)
+    return str(path), (path.stat().st_mtime if path.is_file() else -1.0)
+
+
+@functools.lru_cache(maxsize=8)
+def _onnx_file(path: str, mtime: float) -> OnnxGraph:
+    return OnnxGraph(path)
+
+
+@functools.lru_cache(maxsize=8)
+def _onnx_in_memory(path: str, mtime: float, network: str) -> OnnxGraph:
+    from stereonet.models.graphs import export_graph
+
+    net, info = load_weights(path, network)
+    exported = export_graph(network, net, dict(info["config"]), methods_of(network), weights=path)
+    return OnnxGraph(exported.model, name=f"<{network} exported in memory from {path}>")
+
+
+def network_graph(network: str, checkpoint: str | os.PathLike | None = None, backend: str = "torch",
+                  onnx_model: str | os.PathLike | None = None) -> NetworkGraph | OnnxGraph:
+    """The network part of the matchers of ``network`` ("siamese", "dispnet", "smd"), on ``backend``.
+
+    ``"torch"``: the network from ``checkpoint`` or the shipped weights. ``"onnx"``: ``onnx_model`` run by
+    onnxruntime, or without it the same weights exported in memory (once per file). Both are called alike
+    (:mod:`stereonet.models.graphs`) and carry ``network``, ``max_disp``, ``stride`` and ``dtype``.
+    """
+    if backend not in BACKENDS:
+        raise StereoInputError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
+    if backend == "torch":
+        if onnx_model is not None:
+            raise StereoInputError("onnx_model: only used with backend='onnx'")
+        return _torch_graph(network, load_network(network, checkpoint))
+    try:
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        raise ImportError("backend: 'onnx' needs onnxruntime and onnx (pip install 'stereonet[onnx]')") from None
+    if onnx_model is not None:
+        if checkpoint is not None:
+            raise StereoInputError("checkpoint: an ONNX model carries its own weights; pass checkpoint or "
+                                   "onnx_model, not both")
+        key = _file_key(onnx_model)
+        if key[1] < 0:
+            raise FileNotFoundError(f"onnx_model: no such file: {onnx_model}")
+        graph = _onnx_file(*key)
+    else:
+        path = Path(checkpoint) if checkpoint is not None else default_weights_path(network)
+        key = _file_key(path)
+        if key[1] < 0:
+            load_weights(path, network)  # raises the FileNotFoundError with the message
+        graph = _onnx_in_memory(*key, network)
+    if graph.network != network:
+        raise StereoInputError(f"onnx_model: {graph.name} holds a {graph.network!r} network, not the "
+                               f"{network!r} one of {', '.join(methods_of(network))}")
+    return graph
+
+
+def _downscale_to_range(left: torch.Tensor, right: torch.Tensor, max_disp: int, trained_disp: int):
+    """Downscale the pair by ``trained_disp / max_disp`` when ``max_disp`` exceeds the trained range.
+
+    Returns (left, right, scale) with scale <= 1 (1 = unchanged); images :math:`(B, C, h, w)`.
+    """
+    scale = min(1.0, trained_disp / max_disp)
+    if scale < 1.0:
+        h, w = left.shape[-2:]
+        size = (max(16, round(h * scale)), max(16, round(w * scale)))
+        left = F.interpolate(left, size=size, mode="area")
+        right = F.interpolate(right, size=size, mode="area")
+    return left, right, scale
+
+
+def _dispnet_predict(graph: NetworkGraph | OnnxGraph, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+    """DispNet disparity :math:`(B, 1, H, W)` of a pair of any size (padded to the stride, then unpadded)."""
+    (disp,), padder = run_padded(graph, left.to(graph.dtype), right.to(graph.dtype))
+    return padder.unpad(disp)
+
+
+def _smd_predict(graph: NetworkGraph | OnnxGraph, left: torch.Tensor, right: torch.Tensor, upsample: float):
+    """:func:`stereonet.models.smd.predict_smd` (``with_mixture=True``) on ``graph``."""
+    left, right = left.to(graph.dtype), right.to(graph.dtype)
+    b, _, h, w = left.shape
+    padder = InputPadder(h, w, graph.stride)
+    left_p, right_p = padder.pad(left, right)
+    grid = padded_query_grid(b, h, w, padder, upsample, device=left.device, dtype=left.dtype)
+    with torch.no_grad():
+        mix = MixtureParams(*graph(left_p, right_p, grid))
+    return mixture_outputs(mix, grid.shape[2] / w, with_mixture=True)
+
+
+@register("dispnet", kind="learned", needs_weights=True,
+          description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt)")
+def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                    backend: str = "torch", onnx_model: str | None = None) -> StereoOutput:
+    """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]; every pixel valid."""
+    graph = network_graph("dispnet", checkpoint, backend, onnx_model)
+    h, w = left.shape[-2:]
+    small_left, small_right, _ = _downscale_to_range(left, right, max_disp, graph.max_disp)
+    with torch.no_grad():
+        disp = _dispnet_predict(graph, small_left, small_right)
+    if disp.shape[-2:] != (h, w):
+        disp = resize_disparity(disp, h, w)
+    disp = disp.clamp(0, max_disp).to(left.dtype)
+    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
+
+
+@register("smd", kind="learned", needs_weights=True,
+          description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt)")
+def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None) -> StereoOutput:
+    """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
+    that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the chosen mode's Laplacian scale b
+    (same unit), ``confidence = exp(-b)``; extras hold both modes and the mixture weight."""
+    graph = network_graph("smd", checkpoint, backend, onnx_model)
+    h, w = left.shape[-2:]
+    hq, wq = round(h * upsample), round(w * upsample)
+    small_left, small_right, scale = _downscale_to_range(left, right, max_disp, graph.max_disp)
+    disp, unc, mix = _smd_predict(graph, small_left, small_right, upsample / scale)
+    if disp.shape[-2:] != (hq, wq):  # rounding of the downscaled size
+        ratio = wq / disp.shape[-1]
+        disp, unc = resize_disparity(disp, hq, wq, mode="nearest"), resize_disparity(unc, hq, wq, mode="nearest")
+        mix = {k: F.interpolate(v, size=(hq, wq), mode="nearest") * (1.0 if k == "pi" else ratio)
+               for k, v in mix.items()}
+    disp = disp.clamp(0, max_disp * upsample).to(left.dtype)
+    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool), uncertainty=unc.to(left.dtype),
+                        confidence=torch.exp(-unc).to(left.dtype),
+                        extras={k: v.to(left.dtype) for k, v in mix.items()})
+
+
+def _siamese_cost(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint, backend: str = "torch",
+                  onnx_model: str | None = None) -> torch.Tensor:
+    graph = network_graph("siamese", checkpoint, backend, onnx_model)
+    with torch.no_grad():
+        (feats,) = graph(torch.cat([left, right]).to(graph.dtype))  # 2BxFxHxW
+        b = left.shape[0]
+        return siamese_cost_volume(feats[:b], feats[b:], max_disp).to(left.dtype)
+
+
+@register("siamese", kind="learned", needs_weights=True,
+          description="MC-CNN-fast-style Siamese features, dot-product cost, winner-takes-all + subpixel")
+def siamese_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                    backend: str = "torch", onnx_model: str | None = None) -> StereoOutput:
+    """WTA on the learned cost volume with parabola sub-pixel refinement; every pixel valid."""
+    from stereonet.select.subpixel import subpixel_refine
+    from stereonet.select.wta import wta
+
+    cost = _siamese_cost(left, right, max_disp, checkpoint, backend, onnx_model)
+    disp, min_cost = wta(cost)
+    disp = subpixel_refine(cost, disp)
+    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool), cost_volume=cost,
+                        confidence=(1.0 - min_cost / 2.0).clamp(0, 1))
+
+
+@register("siamese-sgm", kind="learned", needs_weights=True,
+          description="Siamese learned cost + SGM (8 paths) + LR check + occlusion filling")
+def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                        P1: float = 0.05, P2: float = 0.6, p2_alpha: float = 0.0, paths: int = 8,
+                        lr_tol: float = 1.0, fill: bool = True, backend: str = "torch",
+                        onnx_model: str | None = None) -> StereoOutput:
+    """SGM on the Siamese cost (``1 - cos`` in [0, 2]; P1/P2 in those units), WTA + parabola sub-pixel,
+    left-right check (tolerance ``lr_tol``) and, with ``fill``, textbook occlusion filling (then every pixel
+    is valid; ``extras["lr_consistent"]`` keeps the check). Without ``fill``, ``valid`` = the LR check.
+    ``confidence``: the aggregated cost's margin (:mod:`stereonet.select.confidence`), 0 where the LR
+    check failed."""
+    from stereonet.aggregate.sgm import sgm_aggregate
+    from stereonet.select.confidence import cost_margin_confidence
+    from stereonet.select.fill import fill_occlusions
+    from stereonet.select.lr_check import left_right_check, wta_right
+    from stereonet.select.subpixel import subpixel_refine
+    from stereonet.select.wta import wta
+
+    cost = _siamese_cost(left, right, max_disp, checkpoint, backend, onnx_model)
+    agg = sgm_aggregate(cost, P1, P2, paths=paths, image=left if p2_alpha else None, p2_alpha=p2_alpha)
+    disp_int, _ = wta(agg)
+    disp = subpixel_refine(agg, disp_int)
+    consistent = left_right_check(disp_int, wta_right(agg), tol=lr_tol)
+    if fill:
+        disp = fill_occlusions(disp, consistent)
+        valid = torch.ones_like(consistent)
+    else:
+        valid = consistent
+    confidence = cost_margin_confidence(agg) * consistent.to(agg.dtype)  # 0 where the LR check failed
+    return StereoOutput(disp, valid, confidence=confidence, cost_volume=agg, extras={"lr_consistent": consistent})
+
+
+# Weight of the learned cost in siamese-census-sgm, chosen on data_gen validation pairs only (see the model card)
+LEARNED_WEIGHT = 0.75
+
+
+@register("siamese-census-sgm", kind="learned", needs_weights=True,
+          description="sgm on census 7x7 + the Siamese learned cost (weights/siamese.pt), sgm's back end")
+def siamese_census_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                               learned_weight: float = LEARNED_WEIGHT, backend: str = "torch",
+                               onnx_model: str | None = None, **options) -> StereoOutput:
+    """``sgm`` (same penalties, selection, filters and confidence; options as for ``sgm``) on the cost
+    ``(1 - a) * census + a * 24 * (1 - cos)``: the census Hamming distance (0..48 bits) and the Siamese
+    cost (0..2) brought to the same range, ``a = learned_weight`` (0 = plain ``sgm``)."""
+    from stereonet.matchers.local import sgm
+
+    if not 0.0 <= learned_weight <= 1.0:
+        raise StereoInputError(f"learned_weight: expected a value in [0, 1], got {learned_weight!r}")
+    learned = _siamese_cost(left, right, max_disp, checkpoint, backend, onnx_model).clamp_(max=2.0)  # BxDxHxW, ours
+    return sgm(left, right, max_disp, extra_cost=(1.0 - learned_weight, 24.0 * learned_weight, learned), **options)

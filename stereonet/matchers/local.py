@@ -1,0 +1,201 @@
+"""Local matchers (``bm-*``) and semi-global matching (``sgm``) behind the matcher signature.
+
+Pipeline of every ``bm-*`` method (textbook block matching):
+cost volume (window mean of the cost) -> WTA -> sub-pixel (parabola) -> uniqueness ratio -> left-right
+check of the integer WTA against the right-reference WTA of the same volume (``|dL - dR| <= lr_tol``); invalid pixels are
+left invalid (``fill=False``; eval.py has ``--fill``). ``sgm`` adds semi-global aggregation of a census
+(or AD-census) cost before the selection, and a median + speckle filter after it.
+
+Speed: on the CPU (float32, no gradient) ``bm-*`` never builds the volume: one fused numba pass per image
+slides the window sums along the rows and selects on each finished cost row
+(:func:`~stereonet.select.wta.block_select_checked`, tested equal to the volume path), so the output has
+``cost_volume=None`` unless ``keep_volume=True``. Inputs are checked once, by the matcher registry.
+``sgm`` on the CPU (float32, no gradient, pixelwise census) computes the census volume as uint8
+(:func:`~stereonet.cost.volume.census_pixel_volumes_u8`) straight into the numba aggregation, and selects
+with the cost-margin confidence in one pass (:func:`~stereonet.select.wta.select_disparity_confidence`):
+the same numbers as the documented composition of public functions (tested equal).
+
+``sgm`` defaults: :data:`SGM_DEFAULTS`, chosen on the six real pairs of ../shared/data against opencv-sgbm
+with ``scripts/bench_classical.py``. Candidates tried (bad-2 %, all pixels, filled; tsukuba / venus / cones /
+teddy / kitti2012 / kitti2015): census 5x5, P1=1, P2=8 constant: 4.78 / 1.18 / 7.26 / 8.00 / 10.60 / 15.22
+(loses KITTI 2012 to SGBM's 8.04); AD-census was worse on KITTI (14-19 %); census 7x7 with P1=2, P2=48 and
+the edge-adapted P2 (alpha 20): 3.93 / 1.06 / 7.51 / 7.49 / 7.71 / 13.31 with the LR check on sub-pixel
+disparities, 3.74 / 1.65 / 7.42 / 7.40 / 7.59 / 14.26 with it on the integer WTA (the default: denser, 86 %
+instead of 83 % on Cones), both below SGBM (4.76 / 2.20 / 11.91 / 18.92 / 8.04 / 21.73) on every pair;
+16 paths gave no consistent gain for twice the time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from stereonet.aggregate.sgm import check_sgm_options, sgm_aggregate, sgm_aggregate_hwd
+from stereonet.checks import check_window
+from stereonet.cost import build_cost_volume
+from stereonet.cost.volume import (
+    CENSUS_U8_MAX_WINDOW,
+    build_cost_volume_checked,
+    census_pixel_volumes_u8,
+)
+from stereonet.kernels import use_numba
+from stereonet.matchers import register
+from stereonet.select.fill import fill_occlusions
+from stereonet.select.filters import median_filter, speckle_filter
+from stereonet.select.wta import block_select_checked, select_disparity, select_disparity_confidence
+from stereonet.types import StereoOutput
+
+BM_DEFAULTS = dict(subpixel="parabola", uniqueness=0.1, lr_tol=1.0, median=0, speckle_size=0,
+                   speckle_diff=1.0, fill=False)
+
+# Chosen on the six real pairs of ../shared/data (bad-2 after the textbook fill, see the module doc):
+# census 7x7 (48 bits, pixelwise), P1 = 2 and P2 = 48 Hamming bits with P2 lowered across intensity edges
+# (P2 / (1 + 20 |dI|), dI in [0, 1], never below P1), 8 paths, parabola, uniqueness 5 %, LR tolerance 1 px,
+# 3x3 median over valid pixels, speckles < 100 px (steps <= 1 px) removed.
+SGM_DEFAULTS = dict(cost="census", census_window=7, window=1, P1=2.0, P2=48.0, p2_alpha=20.0, paths=8,
+                    subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3, speckle_size=100,
+                    speckle_diff=1.0, fill=False)
+
+
+def select_and_filter(cost: torch.Tensor, *, subpixel: str | None = "parabola", uniqueness: float = 0.1,
+                      lr_tol: float | None = 1.0, median: int = 0, speckle_size: int = 0,
+                      speckle_diff: float = 1.0, fill: bool = False) -> StereoOutput:
+    """The local back end shared by ``bm-*`` and ``sgm``.
+
+    Args:
+        cost: :math:`(B, D, H, W)` (aggregated) costs.
+        subpixel: ``"parabola"``, ``"equiangular"`` or None.
+        uniqueness: uniqueness ratio (0 = off).
+        lr_tol: LR-check tolerance in pixels (None = no LR check).
+        median: median filter size on the disparity (0 = off), over valid pixels only.
+        speckle_size: speckle filter region size (0 = off), regions with steps <= ``speckle_diff``.
+        fill: fill invalid pixels with :func:`~stereonet.select.fill.fill_occlusions` (they stay invalid);
+            otherwise invalid pixels keep their raw WTA disparity.
+
+    Returns:
+        :class:`StereoOutput` with ``cost_volume=cost`` and extras ``disparity_right`` (right-reference
+        WTA), ``lr_valid`` and ``unique`` (bool masks).
+    """
+    selection = select_disparity(cost, subpixel, uniqueness, lr_tol)
+    return _filter(selection, cost, median=median, speckle_size=speckle_size, speckle_diff=speckle_diff, fill=fill)
+
+
+def _filter(selection: tuple, cost: torch.Tensor | None, *, median: int, speckle_size: int, speckle_diff: float,
+            fill: bool) -> StereoOutput:
+    """Post-filters of :func:`select_and_filter` on a ``(disp, min_cost, unique, disp_right, lr_ok)`` tuple."""
+    disp, _, unique, disp_right, lr_ok = selection
+    valid = unique & lr_ok
+    if median:
+        disp = median_filter(disp, median, valid)
+    if speckle_size:
+        valid = speckle_filter(disp, valid, speckle_size, speckle_diff)
+    if fill:
+        disp = fill_occlusions(disp, valid)
+    return StereoOutput(disp, valid, cost_volume=cost,
+                        extras={"disparity_right": disp_right, "lr_valid": lr_ok, "unique": unique})
+
+
+def _split(options: dict, defaults: dict) -> tuple[dict, dict]:
+    merged = {**defaults, **options}
+    back = {k: merged.pop(k) for k in list(merged) if k in BM_DEFAULTS}
+    return merged, back
+
+
+def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int, *,
+                   keep_volume: bool = False, **options) -> StereoOutput:
+    """Block matching with ``cost`` over ``window`` + the local back end (:func:`select_and_filter`).
+
+    Inputs must be checked already (the matcher registry does). For float32 CPU input without gradient
+    and ``keep_volume=False`` the volume is never built: :func:`~stereonet.select.wta.block_select_checked`
+    fuses cost, window sums and selection in one numba pass (same disparities as the volume path) and
+    the output has ``cost_volume=None``; ``keep_volume=True`` (or a torch backend) builds the volume and
+    returns it as ``cost_volume``.
+    """
+    cost_opts, back = _split(options, BM_DEFAULTS)
+    if not keep_volume and use_numba(left, right, backend=cost_opts.get("backend", "auto")):
+        selection = block_select_checked(left, right, max_disp, cost, check_window(window), back.pop("subpixel"),
+                                         back.pop("uniqueness"), back.pop("lr_tol"), **cost_opts)
+        return _filter(selection, None, **back)
+    vol = build_cost_volume(left, right, max_disp, cost=cost, window=window, **cost_opts)
+    return select_and_filter(vol, **back)
+
+
+def _bm(name: str, cost: str, window: int, description: str, **fixed):
+    @register(name, kind="classical", description=description)
+    def run(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
+        opts = {"window": window, **fixed, **options}
+        return block_matching(left, right, max_disp, cost, opts.pop("window"), **opts)
+
+    run.__name__ = name.replace("-", "_")
+    run.__doc__ = (f"{description}. Options: window, subpixel, uniqueness, lr_tol, median, speckle_size, fill, "
+                   "keep_volume (return the cost volume; slower).")
+    return run
+
+
+bm_sad = _bm("bm-sad", "sad", 9, "Block matching, SAD 9x9 + WTA, parabola, uniqueness, LR check")
+bm_ssd = _bm("bm-ssd", "ssd", 9, "Block matching, SSD 9x9 + WTA, parabola, uniqueness, LR check")
+bm_zsad = _bm("bm-zsad", "zsad", 9, "Block matching, zero-mean SAD 9x9 + WTA, parabola, uniqueness, LR check")
+bm_lssad = _bm("bm-lssad", "lssad", 9, "Block matching, locally scaled SAD 9x9 + WTA, parabola, uniqueness, LR")
+bm_ncc = _bm("bm-ncc", "ncc", 9, "Block matching, 1 - NCC 9x9 + WTA, parabola, uniqueness, LR check")
+bm_census = _bm("bm-census", "census", 5, "Block matching, census 7x7 Hamming averaged 5x5 + WTA, LR check",
+                census_window=7)
+bm_adaptive = _bm("bm-adaptive", "adaptive", 7,
+                  "Block matching, SAD over 5 shiftable 7x7 windows (centre + best 2 corners), LR check")
+
+
+def _mixed_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: torch.Tensor):
+    """``w_own * own[i] + w_extra * other[i]`` per image as (H, W, D) float32 (``other``: (B, D, H, W)), one
+    image at a time (a generator, as :func:`~stereonet.aggregate.sgm.sgm_aggregate_hwd` consumes it)."""
+    from stereonet.kernels.cost import mix_costs_hwd
+
+    for i, vol in enumerate(own):
+        o = np.ascontiguousarray(other[i].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+        yield mix_costs_hwd(vol, o, np.float32(w_own), np.float32(w_extra))
+
+
+@register("sgm", kind="classical",
+          description="Semi-global matching: census 7x7, 8 paths, edge-adapted P2, parabola, LR, median, speckle")
+def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
+    """Semi-global matching (Hirschmüller 2008) on a census (default) or any ``cost`` volume.
+
+    Options (defaults in :data:`SGM_DEFAULTS`): ``cost``, ``census_window``, ``window`` (cost aggregation,
+    1 = pixelwise), ``P1``, ``P2`` (in cost units: Hamming bits for census), ``p2_alpha`` (P2 adaptation
+    to the left image gradient), ``paths`` (4/8/16), then the back-end options of
+    :func:`select_and_filter`. The returned ``cost_volume`` is the aggregated cost; ``confidence`` is its
+    cost margin (:func:`~stereonet.select.confidence.cost_margin_confidence`), 0 on invalid pixels.
+    """
+    opts = {**SGM_DEFAULTS, **options}
+    P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
+    cost_opts, back = _split(opts, {})
+    cost_name, window = cost_opts.pop("cost"), cost_opts.pop("window")
+    if cost_name not in ("census", "census_ad"):
+        cost_opts.pop("census_window", None)
+    # the registry validated left/right: no second check of the images
+    extra = cost_opts.pop("extra_cost", None)
+    census_window = cost_opts.get("census_window", 5)
+    if (cost_name == "census" and window == 1 and set(cost_opts) <= {"census_window", "backend"}
+            and isinstance(census_window, int) and 3 <= census_window <= CENSUS_U8_MAX_WINDOW
+            and use_numba(left, right, backend=cost_opts.get("backend", "auto"))):
+        # CPU fast path, the same numbers: the pixelwise census volume as (H, W, D) uint8 straight into the
+        # numba aggregation (a quarter of the memory traffic of the float32 volume; tested equal); a mixed-in
+        # volume is added by one numba pass per image (mix_costs_hwd, the float32 sum of the torch path)
+        directions = check_sgm_options(P1, P2, paths, p2_alpha)
+        vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
+        if extra is not None:
+            vols = _mixed_hwd(vols, *extra)
+        agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha).to(left.device)
+        del vols
+    else:
+        vol = build_cost_volume_checked(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
+        if extra is not None:  # (w_own, w_extra, volume): a learned cost mixed in (siamese-census-sgm)
+            w_own, w_extra, other = extra
+            vol = w_own * vol + w_extra * other.to(vol)
+        agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, _guide_checked=True)
+        del vol
+    # selection and the cost margin of the aggregated cost in one pass over it (select_and_filter +
+    # cost_margin_confidence, the same numbers); confidence 0 where LR / uniqueness / speckles rejected
+    selection, confidence = select_disparity_confidence(agg, back.pop("subpixel"), back.pop("uniqueness"),
+                                                        back.pop("lr_tol"))
+    out = _filter(selection, agg, **back)
+    out.confidence = confidence * out.valid.to(agg.dtype)
+    return out

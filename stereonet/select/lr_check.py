@@ -1,0 +1,83 @@
+"""Left-right consistency: right-reference costs from the same volume and the LR check."""
+
+from __future__ import annotations
+
+import torch
+
+from stereonet.checks import StereoInputError, check_cost_volume, check_shape
+from stereonet.kernels import use_numba
+
+
+def right_cost_volume(cost: torch.Tensor) -> torch.Tensor:
+    """Right-reference volume from a left-reference one: ``cost_right[:, d, y, x] = cost[:, d, y, x + d]``.
+
+    Positions with ``x + d >= W`` (left pixel outside the image) get ``max(cost) + 1``.
+
+    Args:
+        cost: :math:`(B, D, H, W)` left-referenced.
+
+    Returns:
+        :math:`(B, D, H, W)` right-referenced (``x_left = x_right + d``).
+    """
+    check_cost_volume(cost)
+    b, n, h, w = cost.shape
+    fill = float(cost.detach().amax()) + 1.0
+    out = torch.full_like(cost, fill)
+    for d in range(n):
+        out[:, d, :, : w - d] = cost[:, d, :, d:]
+    return out
+
+
+def wta_right(cost: torch.Tensor) -> torch.Tensor:
+    """WTA right-reference disparity of a *left-reference* volume without building the right volume.
+
+    Args:
+        cost: :math:`(B, D, H, W)` left-referenced.
+
+    Returns:
+        :math:`(B, 1, H, W)` integer-valued right-reference disparity ``disparity_right`` (dtype of cost);
+        ties resolve to the smallest disparity. A float32 CPU volume runs the numba kernel
+        :func:`stereonet.kernels.select.wta_right_hwd` (one pass, same result).
+    """
+    check_cost_volume(cost)
+    b, n, h, w = cost.shape
+    if use_numba(cost):
+        from stereonet.kernels.select import wta_right_hwd
+
+        outs = [torch.from_numpy(wta_right_hwd(cost[i].detach().permute(1, 2, 0).contiguous().numpy()))
+                for i in range(b)]
+        return torch.stack(outs)[:, None]
+    best = cost[:, 0].clone()  # BxHxW, d = 0 always valid
+    arg = torch.zeros_like(best)
+    for d in range(1, min(n, w)):
+        cand = cost[:, d, :, d:]
+        better = cand < best[..., : w - d]
+        best[..., : w - d] = torch.where(better, cand, best[..., : w - d])
+        arg[..., : w - d] = torch.where(better, torch.full_like(cand, float(d)), arg[..., : w - d])
+    return arg.unsqueeze(1)
+
+
+def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: float = 1.0) -> torch.Tensor:
+    """Left-right consistency check.
+
+    A left pixel ``x`` with disparity ``dL`` passes when its match ``xr = round(x - dL)`` is inside the right
+    image and ``|dL - disp_right(xr)| <= tol``. Failing pixels are occluded or mismatched.
+
+    Args:
+        disp_left: :math:`(B, 1, H, W)` left-reference disparity.
+        disp_right: :math:`(B, 1, H, W)` right-reference disparity (``x_left = x_right + d``).
+        tol: tolerance in pixels.
+
+    Returns:
+        bool :math:`(B, 1, H, W)`, True = consistent.
+    """
+    dims = check_shape(disp_left, ["B", "1", "H", "W"], "disp_left")
+    check_shape(disp_right, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "disp_right")
+    if tol < 0:
+        raise StereoInputError(f"tol: expected a non-negative tolerance, got {tol}")
+    w = dims["W"]
+    x = torch.arange(w, device=disp_left.device, dtype=disp_left.dtype).view(1, 1, 1, -1)
+    xr = torch.round(x - disp_left)
+    inside = (xr >= 0) & (xr <= w - 1)
+    d_r = disp_right.gather(3, xr.clamp(0, w - 1).long())
+    return inside & ((disp_left - d_r).abs() <= tol)

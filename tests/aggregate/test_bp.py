@@ -1,0 +1,114 @@
+"""Loopy belief propagation: distance transform, numba == torch, known answers, energy, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from stereonet.aggregate.bp import belief_propagation
+from stereonet.aggregate.mrf import (
+    contrast_edge_weights,
+    grid_energy,
+    truncated_linear_min_convolution,
+)
+from stereonet.checks import StereoInputError
+from stereonet.matchers import match
+
+
+def noisy_step_cost(seed: int = 0, noise: float = 3.0):
+    """(1, 16, 24, 40) costs of a piecewise-constant truth (3 with a block of 10) plus uniform noise."""
+    g = torch.Generator().manual_seed(seed)
+    truth = torch.full((1, 1, 24, 40), 3)
+    truth[..., 6:18, 12:28] = 10
+    d = torch.arange(16).view(1, 16, 1, 1)
+    cost = (d - truth).abs().clamp(max=4).float() + noise * torch.rand(1, 16, 24, 40, generator=g)
+    return cost, truth
+
+
+def pixel_cost(left, right, max_disp):
+    b, _, h, w = left.shape
+    vol = torch.ones(b, max_disp + 1, h, w, dtype=left.dtype)
+    for d in range(max_disp + 1):
+        vol[:, d, :, d:] = (left[..., d:] - right[..., : w - d]).abs().mean(1)
+    return vol
+
+
+def test_distance_transform_matches_brute_force():
+    g = torch.Generator().manual_seed(0)
+    h = torch.rand(2, 9, 3, 4, generator=g, dtype=torch.float64) * 5
+    slope = torch.rand(2, 1, 3, 4, generator=g, dtype=torch.float64)
+    d = torch.arange(9, dtype=torch.float64)
+    for T in (1.0, 2.5, 100.0):
+        pen = (d[:, None] - d[None, :]).abs().clamp(max=T)  # [d, d']
+        brute = (h[:, None] + slope[:, None] * pen.view(1, 9, 9, 1, 1)).amin(dim=2)
+        torch.testing.assert_close(truncated_linear_min_convolution(h, slope, T), brute)
+
+
+@pytest.mark.parametrize("levels", [1, 3])
+def test_numba_equals_torch_reference(levels):
+    g = torch.Generator().manual_seed(0)
+    cost = torch.rand(2, 7, 13, 17, generator=g, dtype=torch.float64)
+    wr, wd = (torch.rand(2, 1, 13, 17, generator=g, dtype=torch.float64) for _ in range(2))
+    kw = dict(iterations=3, levels=levels, weights_right=wr, weights_down=wd)
+    a = belief_propagation(cost, 0.4, 2.0, backend="numba", **kw)
+    b = belief_propagation(cost, 0.4, 2.0, backend="torch", **kw)
+    torch.testing.assert_close(a.beliefs, b.beliefs)
+    assert torch.equal(a.disparity, b.disparity)
+
+
+def test_plane_gives_constant_disparity(textured_pair):
+    left, right, d = textured_pair
+    res = belief_propagation(pixel_cost(left, right, 12), 0.1, 2.0, iterations=4, levels=3)
+    assert torch.all(res.disparity[..., 12:] == d)
+    assert res.beliefs.shape == (1, 13, 48, 96)
+
+
+def test_energy_decreases_and_recovers_the_truth():
+    cost, truth = noisy_step_cost()
+    wta = cost.argmin(dim=1, keepdim=True)
+    res = belief_propagation(cost, 1.0, 2.0, iterations=5, levels=3)
+    e_wta = grid_energy(cost, wta, 1.0, 2.0)
+    assert float(res.energy) < 0.8 * float(e_wta)
+    torch.testing.assert_close(res.energy, grid_energy(cost, res.disparity.long(), 1.0, 2.0))
+    assert (res.disparity.long() == truth).float().mean() > 0.98
+    assert (wta == truth).float().mean() < 0.8
+    # more iterations at one level do not end far above the coarse-to-fine energy
+    single = belief_propagation(cost, 1.0, 2.0, iterations=10, levels=1)
+    assert float(single.energy) < float(e_wta)
+
+
+def test_contrast_weights():
+    img = torch.zeros(1, 3, 4, 5)
+    img[..., 3:] = 1.0
+    wr, wd = contrast_edge_weights(img, threshold=0.1, factor=4.0)
+    assert wr.shape == (1, 1, 4, 5) and wd.shape == (1, 1, 4, 5)
+    assert torch.all(wr[..., 2] == 1.0) and torch.all(wr[..., :2] == 4.0) and torch.all(wr[..., -1] == 0)
+    assert torch.all(wd[..., :-1, :] == 4.0) and torch.all(wd[..., -1, :] == 0)
+
+
+def test_bp_matcher(textured_pair):
+    left, right, d = textured_pair
+    out = match("bp", left.expand(1, 3, -1, -1), right.expand(1, 3, -1, -1), 10, cost="sad", window=3)
+    assert out.valid[..., 10:].all() and out.cost_volume.shape == (1, 11, 48, 96)
+    assert torch.equal(out.valid, ~out.extras["occlusion"])
+    assert (out.disparity[..., 10:] - d).abs().max() < 0.5
+
+
+def test_bad_inputs():
+    cost = torch.rand(1, 4, 6, 8)
+    with pytest.raises(StereoInputError, match="truncation"):
+        belief_propagation(cost, 1.0, 0.0)
+    with pytest.raises(StereoInputError, match="smoothness"):
+        belief_propagation(cost, math.nan)
+    with pytest.raises(StereoInputError, match="iterations"):
+        belief_propagation(cost, 1.0, iterations=0)
+    with pytest.raises(StereoInputError, match="weights_right"):
+        belief_propagation(cost, 1.0, weights_right=torch.ones(1, 1, 6, 9))
+    with pytest.raises(StereoInputError, match="cost"):
+        belief_propagation(torch.full((1, 4, 6, 8), math.inf), 1.0)
+    with pytest.raises(StereoInputError, match="backend"):
+        belief_propagation(cost, 1.0, backend="gpu")
+    with pytest.raises(StereoInputError, match="right"):
+        match("bp", torch.rand(1, 1, 8, 16), torch.rand(1, 1, 8, 15), 4)

@@ -1,0 +1,99 @@
+"""α-expansion graph cuts: energy never increases, exact on binary Potts, known answers, bad input."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+import torch
+
+from stereonet.aggregate.graphcut import alpha_expansion
+from stereonet.aggregate.mrf import grid_energy
+from stereonet.checks import StereoInputError
+from stereonet.matchers import match
+
+
+def test_energy_never_increases_and_recovers_the_truth():
+    g = torch.Generator().manual_seed(0)
+    truth = torch.full((1, 1, 24, 40), 3)
+    truth[..., 6:18, 12:28] = 10
+    d = torch.arange(16).view(1, 16, 1, 1)
+    cost = (d - truth).abs().clamp(max=4).float() + 3.0 * torch.rand(1, 16, 24, 40, generator=g)
+    res = alpha_expansion(cost, 1.0, 2.0, cycles=2)
+    hist = res.history[0]
+    assert len(hist) > 16 and all(b <= a for a, b in zip(hist, hist[1:]))
+    assert hist[-1] < 0.8 * hist[0]
+    torch.testing.assert_close(res.energy, grid_energy(cost, res.disparity.long(), 1.0, 2.0))
+    assert abs(hist[-1] - float(res.energy)) < 1e-6 * hist[-1]
+    assert (res.disparity.long() == truth).float().mean() > 0.98
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_exact_on_binary_potts(seed):
+    """With two labels an expansion move is the whole problem: the result is the global optimum."""
+    g = torch.Generator().manual_seed(seed)
+    cost = torch.rand(1, 2, 3, 4, generator=g, dtype=torch.float64)
+    wr = torch.rand(1, 1, 3, 4, generator=g, dtype=torch.float64)
+    wd = torch.rand(1, 1, 3, 4, generator=g, dtype=torch.float64)
+    res = alpha_expansion(cost, 0.7, 1.0, weights_right=wr, weights_down=wd)
+    best = min(float(grid_energy(cost, torch.tensor(lab).view(1, 1, 3, 4), 0.7, 1.0, wr, wd))
+               for lab in itertools.product((0, 1), repeat=12))
+    assert abs(float(res.energy) - best) < 1e-9
+
+
+def test_within_factor_two_of_optimum_on_tiny_grid():
+    """α-expansion's guarantee for Potts: E <= 2 E* (Boykov et al. 2001, Theorem 6.1)."""
+    g = torch.Generator().manual_seed(5)
+    cost = torch.rand(1, 3, 2, 4, generator=g, dtype=torch.float64)
+    res = alpha_expansion(cost, 0.5, 1.0, cycles=3)
+    best = min(float(grid_energy(cost, torch.tensor(lab).view(1, 1, 2, 4), 0.5, 1.0))
+               for lab in itertools.product(range(3), repeat=8))
+    assert best - 1e-12 <= float(res.energy) <= 2 * best
+
+
+def test_plane_and_matcher(textured_pair):
+    left, right, d = textured_pair
+    out = match("graphcut", left, right, 10, cost="sad", window=3)
+    assert out.valid[..., 10:].all() and out.cost_volume.shape == (1, 11, 48, 96)
+    assert (out.disparity[..., 10:] - d).abs().max() < 0.5
+    assert out.extras["energy"].shape == (1,)
+
+
+def test_init_is_used():
+    cost = torch.zeros(1, 3, 4, 4)
+    init = torch.full((1, 1, 4, 4), 2.0)
+    res = alpha_expansion(cost, 1.0, 2.0, init=init)  # every labelling of zero cost: constant init is optimal
+    assert torch.all(res.disparity == 2) and res.history[0] == [0.0] * len(res.history[0])
+
+
+def test_bad_inputs():
+    cost = torch.rand(1, 4, 5, 6)
+    with pytest.raises(StereoInputError, match="cycles"):
+        alpha_expansion(cost, 1.0, cycles=0)
+    with pytest.raises(StereoInputError, match="init"):
+        alpha_expansion(cost, 1.0, init=torch.full((1, 1, 5, 6), 7.0))
+    with pytest.raises(StereoInputError, match="init"):
+        alpha_expansion(cost, 1.0, init=torch.zeros(1, 1, 5, 5))
+    with pytest.raises(StereoInputError, match="smoothness"):
+        alpha_expansion(cost, -0.5)
+    with pytest.raises(TypeError, match="cost"):
+        alpha_expansion(cost.int(), 1.0)
+
+
+def test_each_expansion_move_is_optimal():
+    """The min cut finds the best of all 2^N ways to switch pixels to α (brute force on a 2x3 grid)."""
+    import numpy as np
+
+    from stereonet.aggregate.graphcut import _energy, _expansion_move
+
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        cost = rng.random((5, 2, 3)) * 3
+        labels = rng.integers(0, 5, (2, 3))
+        s_right, s_down = rng.random((2, 3)), rng.random((2, 3))
+        alpha = int(rng.integers(0, 5))
+        move = _expansion_move(cost, labels, alpha, s_right, s_down, 2.0)
+        assert np.all((move == labels) | (move == alpha))
+        best = min(_energy(cost, np.where(np.array(x).reshape(2, 3) == 1, alpha, labels), s_right, s_down, 2.0)
+                   for x in itertools.product((0, 1), repeat=6))
+        assert _energy(cost, move, s_right, s_down, 2.0) <= best + 1e-9

@@ -1,0 +1,184 @@
+"""Compiled kernels against their torch references on shapes that cross every block, chunk and vector width.
+
+The numba kernels vectorise along disparities (8 float32 lanes) or image rows, run rows in fixed blocks
+(``stereonet.kernels.block.ROW_BLOCK`` = 32) or up to 64 row chunks (selection), and take fast paths
+for interior pixels (3x3 median network); the shapes below are not multiples of any of these, some are
+smaller than one vector (D < 8, W < D) and some span several blocks, all in float32.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from stereonet import matchers
+from stereonet.aggregate.sgm import (
+    DIRECTIONS_16,
+    _path_torch,
+    p2_maps_numpy,
+    sgm_aggregate,
+    sgm_aggregate_torch,
+)
+from stereonet.cost import build_cost_volume
+from stereonet.kernels.block import ROW_BLOCK
+from stereonet.kernels.sgm import sgm_numba_hwd
+from stereonet.matchers.local import select_and_filter
+from stereonet.select.confidence import cost_margin_confidence
+from stereonet.select.filters import median_filter
+from stereonet.select.wta import select_disparity, select_disparity_confidence
+
+# (H, W, D): one row, W < D, D < one vector, D = 37 (4 vectors + 5), D = 64 (exact vectors), H > ROW_BLOCK
+SGM_SHAPES = [(1, 11, 9), (5, 7, 1), (13, 9, 37), (9, 40, 13), (3, 2, 64), (ROW_BLOCK + 3, 6, 5)]
+
+
+def _cost_hwd(h: int, w: int, d: int, seed: int, integer: bool = False) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    c = rng.random((h, w, d), dtype=np.float32) * np.float32(48.0)
+    return np.floor(c) if integer else c
+
+
+@pytest.mark.parametrize("h, w, d", SGM_SHAPES)
+def test_sgm_kernel_each_path_equals_torch_bitwise(h, w, d):
+    """One direction at a time, the kernel's path cost L_r is the torch recurrence bit for bit."""
+    cost = _cost_hwd(h, w, d, seed=h * w + d)
+    grey = np.random.default_rng(d).random((h, w), dtype=np.float32)
+    p2 = p2_maps_numpy(2.0, 20.0, DIRECTIONS_16, grey, 15.0)
+    cost_t = torch.from_numpy(cost).permute(2, 0, 1)[None].contiguous()  # 1xDxHxW
+    for i, (dx, dy) in enumerate(DIRECTIONS_16):
+        fast = sgm_numba_hwd(cost, np.float32(2.0), p2[i:i + 1], np.array([[dx, dy]], np.int64))
+        ref = _path_torch(cost_t, dx, dy, 2.0, torch.from_numpy(p2[i])[None])[0].permute(1, 2, 0)
+        assert torch.equal(torch.from_numpy(fast), ref), (dx, dy)
+
+
+@pytest.mark.parametrize("h, w, d", SGM_SHAPES)
+def test_sgm_kernel_uint8_costs_equal_float32(h, w, d):
+    cost = _cost_hwd(h, w, d, seed=d, integer=True)
+    p2 = p2_maps_numpy(2.0, 48.0, DIRECTIONS_16[:8], np.random.default_rng(h).random((h, w), dtype=np.float32), 20.0)
+    dirs = np.asarray(DIRECTIONS_16[:8], np.int64)
+    a = sgm_numba_hwd(cost, np.float32(2.0), p2, dirs)
+    b = sgm_numba_hwd(cost.astype(np.uint8), np.float32(2.0), p2, dirs)
+    assert b.dtype == np.float32 and np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("paths", [4, 8, 16])
+def test_sgm_aggregate_numba_equals_torch_across_vector_widths(paths):
+    g = torch.Generator().manual_seed(paths)
+    cost = torch.rand(2, 37, 19, 45, generator=g) * 30
+    image = torch.rand(2, 3, 19, 45, generator=g)
+    ref = sgm_aggregate_torch(cost, 1.5, 12.0, paths, image, p2_alpha=8.0)
+    fast = sgm_aggregate(cost, 1.5, 12.0, paths, image, p2_alpha=8.0, backend="numba")
+    torch.testing.assert_close(fast, ref, rtol=1e-6, atol=1e-4)  # the direction sums differ in order only
+
+
+@pytest.mark.parametrize("d, h, w", [(2, 3, 5), (13, 70, 45), (37, 66, 9)])
+@pytest.mark.parametrize("uniqueness", [0.0, 0.1])
+def test_select_confidence_equals_torch(d, h, w, uniqueness):
+    g = torch.Generator().manual_seed(d * h)
+    cost = (torch.rand(2, d, h, w, generator=g) * 16).round()  # many exact ties
+    (disp, min_cost, unique, disp_right, lr_ok), conf = select_disparity_confidence(
+        cost, "parabola", uniqueness, 1.0, backend="numba")
+    ref = select_disparity(cost, "parabola", uniqueness, 1.0, backend="torch")
+    torch.testing.assert_close(disp, ref[0], rtol=1e-6, atol=1e-6)
+    for name, a, b in (("min_cost", min_cost, ref[1]), ("unique", unique, ref[2]),
+                       ("disp_right", disp_right, ref[3]), ("lr_ok", lr_ok, ref[4])):
+        assert torch.equal(a, b), name
+    torch.testing.assert_close(conf, cost_margin_confidence(cost, backend="torch"), rtol=1e-6, atol=1e-6)
+    assert torch.equal(conf, cost_margin_confidence(cost, backend="numba"))
+
+
+def test_select_confidence_non_finite_costs():
+    g = torch.Generator().manual_seed(7)
+    cost = torch.rand(1, 11, 5, 13, generator=g)
+    cost[0, :, 0, 0] = float("inf")  # no finite cost
+    cost[0, 0, 1, 1] = float("nan")  # NaN first
+    cost[0, 3:, 2, 2] = float("inf")  # no finite competitor beyond the neighbours
+    cost[0, 4, 3, 3] = float("nan")
+    _, conf = select_disparity_confidence(cost, None, 0.0, None, backend="numba")
+    assert torch.equal(conf, cost_margin_confidence(cost, backend="numba"))
+    torch.testing.assert_close(conf, cost_margin_confidence(cost, backend="torch"), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("h, w", [(3, 3), (37, 41), (ROW_BLOCK + 5, 70)])
+@pytest.mark.parametrize("density", [1.0, 0.9, 0.3])
+def test_median_network_equals_torch(h, w, density):
+    g = torch.Generator().manual_seed(h + w)
+    disp = (torch.rand(2, 1, h, w, generator=g) * 20).round() / 4  # ties as in integer disparities
+    valid = torch.rand(2, 1, h, w, generator=g) < density
+    assert torch.equal(median_filter(disp, 3, valid, backend="numba"), median_filter(disp, 3, valid, backend="torch"))
+
+
+@pytest.mark.parametrize("cost, window, kwargs", [("sad", 5, {}), ("ncc", 7, {}), ("census", 1, {"census_window": 7}),
+                                                  ("census_ad", 3, {})])
+def test_block_engine_volume_equals_torch_across_row_blocks(cost, window, kwargs):
+    """The row-block engine restarts its vertical sums every ROW_BLOCK rows: H = 2 blocks + 6 rows, W not
+    a multiple of anything, D = 13."""
+    g = torch.Generator().manual_seed(5)
+    h, w = 2 * ROW_BLOCK + 6, 43
+    left, right = torch.rand(2, 3, h, w, generator=g), torch.rand(2, 3, h, w, generator=g)
+    ref = build_cost_volume(left, right, 12, cost=cost, window=window, backend="torch", **kwargs)
+    fast = build_cost_volume(left, right, 12, cost=cost, window=window, backend="numba", **kwargs)
+    assert fast.shape == ref.shape == (2, 13, h, w)
+    torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-5 * max(1.0, float(ref.abs().max())))
+
+
+def test_registered_sgm_fast_path_equals_public_composition():
+    """``sgm`` on CPU feeds a uint8 census volume to the kernel and selects with the confidence in one
+    pass; the result equals the documented composition of the public functions exactly."""
+    g = torch.Generator().manual_seed(2)
+    h, w = ROW_BLOCK + 7, 53
+    big = torch.rand(2, 3, h, w + 6, generator=g)
+    left, right = big[..., 6:].contiguous(), big[..., :w].contiguous()
+    out = matchers.match("sgm", left, right, 20)
+    vol = build_cost_volume(left, right, 20, cost="census", window=1, census_window=7)
+    agg = sgm_aggregate(vol, 2.0, 48.0, paths=8, image=left, p2_alpha=20.0)
+    ref = select_and_filter(agg, subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3, speckle_size=100,
+                            speckle_diff=1.0, fill=False)
+    assert torch.equal(out.cost_volume, agg)
+    assert torch.equal(out.disparity, ref.disparity) and torch.equal(out.valid, ref.valid)
+    assert torch.equal(out.confidence, cost_margin_confidence(agg) * ref.valid.float())
+    slow = matchers.match("sgm", left, right, 20, backend="torch")  # the float volume path, torch cost
+    assert torch.equal(slow.valid, out.valid)
+
+
+# (B, F, H, W, max_disp): W < D, one feature, F not a multiple of a vector, several images
+FEATURE_SHAPES = [(1, 32, 5, 70, 64), (2, 16, 9, 12, 20), (1, 1, 3, 8, 3), (2, 33, ROW_BLOCK + 3, 17, 9)]
+
+
+@pytest.mark.parametrize("b, f, h, w, max_disp", FEATURE_SHAPES)
+def test_feature_cost_kernel_equals_torch(b, f, h, w, max_disp):
+    """The learned (Siamese) cost ``1 - <f_l, f_r>``: numba kernel = torch loop to float32 rounding, the
+    out-of-image triangle exactly INVALID_COST, on plain and channels-last features."""
+    from stereonet.models.siamese import INVALID_COST, siamese_cost_volume
+
+    g = torch.Generator().manual_seed(f)
+    fl = torch.nn.functional.normalize(torch.randn(b, f, h, w, generator=g), dim=1)
+    fr = torch.nn.functional.normalize(torch.randn(b, f, h, w, generator=g), dim=1)
+    ref = siamese_cost_volume(fl, fr, max_disp, backend="torch")
+    for a, c in [(fl, fr), (fl.contiguous(memory_format=torch.channels_last),
+                            fr.contiguous(memory_format=torch.channels_last))]:
+        fast = siamese_cost_volume(a, c, max_disp, backend="numba")
+        assert fast.shape == ref.shape == (b, max_disp + 1, h, w)
+        torch.testing.assert_close(fast, ref, rtol=0, atol=1e-6)
+        xs = torch.arange(w)
+        outside = (xs[None, :] < torch.arange(max_disp + 1)[:, None])[None, :, None, :].expand_as(fast)
+        assert torch.all(fast[outside] == INVALID_COST) and torch.all(fast[~outside] <= 2.0 + 1e-6)
+    fl_nan = fl.clone()
+    fl_nan[0, 0, 1, 2] = float("nan")  # no 'nnan' in the kernel's fastmath flags: NaN stays NaN
+    assert torch.isnan(siamese_cost_volume(fl_nan, fr, max_disp, backend="numba")[0, :3, 1, 2]).all()
+
+
+def test_sgm_with_a_mixed_in_volume_fast_path_equals_float_path():
+    """``sgm(extra_cost=(a, b, V))`` (siamese-census-sgm's cost): the uint8 census + numba mix path gives the
+    same aggregated cost and maps as the float32 volume path (census volume built by torch, mixed by torch)."""
+    g = torch.Generator().manual_seed(5)
+    h, w, max_disp = ROW_BLOCK + 5, 47, 16
+    big = torch.rand(1, 3, h, w + 5, generator=g)
+    left, right = big[..., 5:].contiguous(), big[..., :w].contiguous()
+    other = torch.rand(1, max_disp + 1, h, w, generator=g) * 2.0
+    fast = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other))
+    slow = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), backend="torch")
+    torch.testing.assert_close(fast.cost_volume, slow.cost_volume, rtol=1e-6, atol=1e-3)
+    assert torch.equal(fast.valid, slow.valid) and torch.equal(fast.disparity, slow.disparity)
+    plain = matchers.match("sgm", left, right, max_disp)
+    assert not torch.equal(plain.cost_volume, fast.cost_volume)  # the mixed-in volume was used

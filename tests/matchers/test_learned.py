@@ -1,0 +1,95 @@
+"""Learned matchers through the registry: weights loading, output contract, bad checkpoints."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from stereonet.checks import StereoInputError
+from stereonet.matchers import available, match
+from stereonet.models.dispnet import DispNet
+from stereonet.models.siamese import SiameseNet
+from stereonet.models.smd import SMDNet
+from stereonet.models.weights import WEIGHTS_DIR_ENV, save_weights
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory):
+    """Tiny random networks saved as slim weight files: {name: path}."""
+    folder = tmp_path_factory.mktemp("weights")
+    torch.manual_seed(0)
+    nets = {"dispnet": (DispNet, {"max_disp": 16, "channels": 8}),
+            "smd": (SMDNet, {"max_disp": 16, "channels": 8, "hidden": [8]}),
+            "siamese": (SiameseNet, {"channels": 8, "layers": 3})}
+    paths = {}
+    for name, (cls, cfg) in nets.items():
+        paths[name] = folder / f"{name}.pt"
+        save_weights(paths[name], name, cfg, cls(**cfg))
+    return paths
+
+
+def test_learned_names_registered():
+    assert {"siamese", "siamese-sgm", "dispnet", "smd"} <= set(available("learned"))
+
+
+@pytest.mark.parametrize("name", ["dispnet", "smd", "siamese", "siamese-sgm"])
+def test_output_contract_odd_size(weights, name):
+    left, right = torch.rand(1, 3, 37, 53), torch.rand(1, 3, 37, 53)
+    ckpt = weights["siamese" if name.startswith("siamese") else name]
+    out = match(name, left, right, 12, checkpoint=str(ckpt))
+    assert out.disparity.shape == (1, 1, 37, 53) and out.valid.dtype == torch.bool
+    assert torch.isfinite(out.disparity).all()
+    assert out.disparity.min() >= 0 and out.disparity.max() <= 12
+    if name == "smd":
+        assert out.uncertainty is not None and (out.uncertainty > 0).all()
+        assert set(out.extras) == {"mu1", "mu2", "b1", "b2", "pi"}
+    if name == "siamese-sgm":
+        assert out.valid.all() and out.extras["lr_consistent"].dtype == torch.bool
+
+
+def test_beyond_trained_range_runs_downscaled(weights):
+    left, right = torch.rand(1, 3, 40, 96), torch.rand(1, 3, 40, 96)
+    out = match("dispnet", left, right, 40, checkpoint=str(weights["dispnet"]))  # trained up to 16
+    assert out.disparity.shape == (1, 1, 40, 96) and out.disparity.max() <= 40
+    out = match("smd", left, right, 40, checkpoint=str(weights["smd"]), upsample=2.0)
+    assert out.disparity.shape == (1, 1, 80, 192)
+
+
+def test_wrong_checkpoint_and_missing_weights(weights, tmp_path, monkeypatch):
+    left = right = torch.rand(1, 3, 32, 48)
+    with pytest.raises(StereoInputError, match="expected a 'dispnet' model, got a 'siamese'"):
+        match("dispnet", left, right, 8, checkpoint=str(weights["siamese"]))
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path))
+    with pytest.raises(FileNotFoundError, match="not found"):
+        match("smd", left, right, 8)
+
+
+def test_registry_does_not_import_lightning():
+    code = "import sys, stereonet.matchers.learned; print('lightning' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_siamese_census_sgm_mixes_the_learned_cost_into_sgm():
+    import torch
+
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import weights_available
+
+    if not weights_available("siamese-census-sgm"):
+        pytest.skip("stereonet/weights/siamese.pt is not present")
+    g = torch.Generator().manual_seed(0)
+    big = torch.rand(1, 3, 40, 110, generator=g)
+    left, right = big[..., 10:100].contiguous(), big[..., 16:106].contiguous()  # disparity 6 everywhere
+    plain = match("sgm", left, right, 16)
+    zero = match("siamese-census-sgm", left, right, 16, learned_weight=0.0)
+    torch.testing.assert_close(zero.disparity, plain.disparity)  # a = 0 is sgm itself
+    mixed = match("siamese-census-sgm", left, right, 16)
+    inner = mixed.disparity[..., 4:-4, 20:-4][mixed.valid[..., 4:-4, 20:-4]]
+    assert inner.numel() > 100 and float((inner - 6).abs().median()) < 0.5
+    assert mixed.confidence is not None
+    with pytest.raises(ValueError, match="learned_weight"):
+        match("siamese-census-sgm", left, right, 16, learned_weight=1.5)

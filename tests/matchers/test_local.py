@@ -1,0 +1,67 @@
+"""Registered local matchers (bm-*, sgm): known answers through the registry, numba == torch selection."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from stereonet import matchers
+from stereonet.checks import StereoInputError
+from stereonet.cost import build_cost_volume
+from stereonet.select.wta import select_disparity
+
+NAMES = ["bm-sad", "bm-ssd", "bm-zsad", "bm-lssad", "bm-ncc", "bm-census", "bm-adaptive", "sgm"]
+
+
+def _plane(d: int = 6, h: int = 36, w: int = 96):
+    g = torch.Generator().manual_seed(7)
+    big = torch.rand(1, 3, h, w + 20, generator=g)
+    return big[..., 10:10 + w].contiguous(), big[..., 10 + d:10 + w + d].contiguous()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_registered_plane(name):
+    left, right = _plane()
+    out = matchers.match(name, left, right, 16)
+    assert out.disparity.shape == (1, 1, 36, 96) and out.valid.dtype == torch.bool
+    if name == "sgm":
+        assert out.cost_volume is not None and out.cost_volume.shape == (1, 17, 36, 96)
+    else:  # bm-*: the fused path builds no volume unless asked to
+        assert out.cost_volume is None
+        assert matchers.match(name, left, right, 16, keep_volume=True).cost_volume.shape == (1, 17, 36, 96)
+    inner = (slice(None), slice(None), slice(6, -6), slice(22, -6))
+    good = (out.disparity[inner] - 6).abs() < 0.5
+    assert (good & out.valid[inner]).float().mean() > 0.95
+    assert not out.valid[..., :4].any()  # x < d: no match in the right image, LR check rejects
+
+
+@pytest.mark.parametrize("name", ["bm-sad", "sgm"])
+def test_registered_fill_option(name):
+    left, right = _plane()
+    out = matchers.match(name, left, right, 16, fill=True)
+    assert torch.isfinite(out.disparity).all()
+    assert (out.disparity[..., :4] - 6).abs().max() < 0.5  # border pixels take their valid neighbour
+
+
+@pytest.mark.parametrize("subpixel", [None, "parabola", "equiangular"])
+def test_select_numba_equals_torch(subpixel):
+    g = torch.Generator().manual_seed(2)
+    left, right = torch.rand(1, 1, 20, 40, generator=g), torch.rand(1, 1, 20, 40, generator=g)
+    vol = build_cost_volume(left, right, 9, cost="sad", window=3)
+    a = select_disparity(vol, subpixel, 0.1, lr_tol=1.0, backend="torch")
+    b = select_disparity(vol, subpixel, 0.1, lr_tol=1.0, backend="numba")
+    assert not a[4].all() and a[4].any()
+    for x, y in zip(a, b):
+        torch.testing.assert_close(x, y, rtol=1e-5, atol=1e-5)
+
+
+def test_registered_bad_input():
+    left, right = _plane()
+    with pytest.raises(StereoInputError, match="max_disp"):
+        matchers.match("sgm", left, right, 0)
+    with pytest.raises(StereoInputError, match="max_disp"):
+        matchers.match("bm-sad", left, right, 96)
+    with pytest.raises(StereoInputError, match="right"):
+        matchers.match("bm-ncc", left, right[:, :1], 8)
+    with pytest.raises(StereoInputError, match="window"):
+        matchers.match("bm-sad", left, right, 8, window=4)
