@@ -26,6 +26,7 @@ import torch
 from stereonet.aggregate.mrf import check_edge_weights, check_smoothness
 from stereonet.checks import StereoInputError, check_cost_volume
 from stereonet.kernels import use_numba
+from stereonet.select.fill import scanline_fill
 
 BACKENDS = ("auto", "numba", "torch")
 _MATCH, _LEFT_OCCLUDED, _RIGHT_OCCLUDED = 0, 1, 2
@@ -147,7 +148,7 @@ def _scanline_dp_reference(rows: torch.Tensor, occlusion_cost: float, moves: lis
                 i, d = i - 1, d - 1
             else:
                 d += 1
-    return fill_left_occluded(disp, occ), occ, energy.cpu()
+    return scanline_fill(disp, ~occ, "left"), occ, energy.cpu()
 
 
 class ScanlinePath(NamedTuple):
@@ -185,18 +186,6 @@ def scanline_dp_path(cost: torch.Tensor, occlusion_cost: float, row: int, batch:
     moves = []
     energy = _scanline_dp_reference(dsi[None].double(), float(occlusion_cost), moves)[2]
     return ScanlinePath(dsi, torch.tensor(moves[::-1], dtype=torch.long).view(-1, 3), float(energy[0]))
-
-
-def fill_left_occluded(disp: torch.Tensor, occluded: torch.Tensor) -> torch.Tensor:
-    """Scanline fill: each occluded pixel takes the value of the nearest non-occluded pixel on its left,
-    or on its right when there is none (left border). ``disp`` and ``occluded`` :math:`(..., W)`; rows with
-    no non-occluded pixel are returned unchanged."""
-    W = disp.shape[-1]
-    pos = torch.arange(W, device=disp.device).expand_as(disp)
-    last_valid = torch.cummax(torch.where(occluded, -1, pos), dim=-1).values  # index of nearest valid on the left
-    first_valid = torch.where(occluded, W, pos).amin(dim=-1, keepdim=True).clamp(max=W - 1)
-    source = torch.where(last_valid >= 0, last_valid, first_valid.expand_as(last_valid))
-    return disp.gather(-1, source)
 
 
 def energy_dp(cost: torch.Tensor, smoothness: float, truncation: float = math.inf,

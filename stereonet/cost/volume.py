@@ -52,6 +52,7 @@ import torch
 from stereonet.checks import StereoInputError, check_image, check_max_disp, check_stereo_inputs, check_window
 from stereonet.cost.box import box_mean, min_filter
 from stereonet.cost.census import BITS_PER_WORD, census_transform, grey_numpy, popcount, to_grey
+from stereonet.cost.correlation import correlation_1d
 from stereonet.kernels import use_numba
 
 DEFAULT_MEMORY_BUDGET = 512 * 2**20
@@ -513,8 +514,7 @@ def build_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, co
     return builders[cost](left, right, max_disp, window, **options)
 
 
-def correlation_similarity(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int, *,
-                           memory_budget: int = DEFAULT_MEMORY_BUDGET) -> torch.Tensor:
+def correlation_similarity(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int) -> torch.Tensor:
     """Correlation *similarity* volume (higher = better) for learned features.
 
     ``sim[b, d, y, x] = mean_c feat_left[b, c, y, x] * feat_right[b, c, y, x - d]`` (the channel-normalised
@@ -534,8 +534,4 @@ def correlation_similarity(feat_left: torch.Tensor, feat_right: torch.Tensor, ma
     if feat_left.shape != feat_right.shape:
         raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
     max_disp = check_max_disp(max_disp, feat_left.shape[-1])
-
-    def dot(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
-        return (lf * rs).mean(1)
-
-    return sweep_cost_volume(feat_left, feat_right, max_disp, dot, memory_budget=memory_budget, invalid="zero")
+    return correlation_1d(feat_left, feat_right, max_disp)  # the one correlation (stereonet.cost.correlation)

@@ -27,11 +27,12 @@ from __future__ import annotations
 import torch
 
 from stereonet.aggregate.bp import belief_propagation
-from stereonet.aggregate.dp import energy_dp, fill_left_occluded, scanline_dp
+from stereonet.aggregate.dp import energy_dp, scanline_dp
 from stereonet.aggregate.graphcut import alpha_expansion
 from stereonet.aggregate.mrf import contrast_edge_weights, left_occlusions_from_disparity
 from stereonet.checks import StereoInputError, check_stereo_inputs
 from stereonet.matchers import register
+from stereonet.select.fill import scanline_fill
 from stereonet.types import StereoOutput
 
 DEFAULT_COST = "census_ad"
@@ -59,7 +60,7 @@ def _occlusion_filled(volume: torch.Tensor, labels: torch.Tensor, subpixel: bool
     (:func:`~stereonet.aggregate.mrf.left_occlusions_from_disparity`) are invalid and take the
     disparity of their nearest visible left neighbour (the textbook scanline fill); the rest are refined."""
     occlusion = left_occlusions_from_disparity(labels)
-    disp = fill_left_occluded(_refine(volume, labels, subpixel), occlusion)
+    disp = scanline_fill(_refine(volume, labels, subpixel), ~occlusion, "left")
     return disp, ~occlusion, occlusion
 
 

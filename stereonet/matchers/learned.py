@@ -230,10 +230,10 @@ def siamese_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, chec
           description="Siamese learned cost + SGM (8 paths) + LR check + occlusion filling")
 def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                         P1: float = 0.05, P2: float = 0.6, p2_alpha: float = 0.0, paths: int = 8,
-                        lr_tol: float = 1.0, fill: bool = True, backend: str = "torch",
+                        disp12_max_diff: float = 1.0, fill: bool = True, backend: str = "torch",
                         onnx_model: str | None = None) -> StereoOutput:
     """SGM on the Siamese cost (``1 - cos`` in [0, 2]; P1/P2 in those units), WTA + parabola sub-pixel,
-    left-right check (tolerance ``lr_tol``) and, with ``fill``, textbook occlusion filling (then every pixel
+    left-right check (tolerance ``disp12_max_diff`` px, OpenCV's name) and, with ``fill``, textbook occlusion filling (then every pixel
     is valid; ``extras["lr_consistent"]`` keeps the check). Without ``fill``, ``valid`` = the LR check.
     ``confidence``: the aggregated cost's margin (:mod:`stereonet.select.confidence`), 0 where the LR
     check failed."""
@@ -248,7 +248,7 @@ def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     agg = sgm_aggregate(cost, P1, P2, paths=paths, image=left if p2_alpha else None, p2_alpha=p2_alpha)
     disp_int, _ = wta(agg)
     disp = subpixel_refine(agg, disp_int)
-    consistent = left_right_check(disp_int, wta_right(agg), tol=lr_tol)
+    consistent = left_right_check(disp_int, wta_right(agg), tol=disp12_max_diff)
     if fill:
         disp = fill_occlusions(disp, consistent)
         valid = torch.ones_like(consistent)

@@ -2,7 +2,7 @@
 
 Pipeline of every ``bm-*`` method (textbook block matching):
 cost volume (window mean of the cost) -> WTA -> sub-pixel (parabola) -> uniqueness ratio -> left-right
-check of the integer WTA against the right-reference WTA of the same volume (``|dL - dR| <= lr_tol``); invalid pixels are
+check of the integer WTA against the right-reference WTA of the same volume (``|dL - dR| <= disp12_max_diff``); invalid pixels are
 left invalid (``fill=False``; eval.py has ``--fill``). ``sgm`` adds semi-global aggregation of a census
 (or AD-census) cost before the selection, and a median + speckle filter after it.
 
@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from stereonet.aggregate.sgm import check_sgm_options, sgm_aggregate, sgm_aggregate_hwd
-from stereonet.checks import check_window
+from stereonet.checks import StereoInputError, check_window
 from stereonet.cost import build_cost_volume
 from stereonet.cost.volume import (
     CENSUS_U8_MAX_WINDOW,
@@ -45,16 +45,42 @@ from stereonet.select.filters import median_filter, speckle_filter
 from stereonet.select.wta import block_select_checked, select_disparity, select_disparity_confidence
 from stereonet.types import StereoOutput
 
-BM_DEFAULTS = dict(subpixel="parabola", uniqueness=0.1, lr_tol=1.0, median=0, speckle_size=0,
-                   speckle_diff=1.0, fill=False)
+# The matcher options use OpenCV's names and meanings where cv2.StereoBM / cv2.StereoSGBM have the knob
+# (opencv-bm and opencv-sgbm take the same names): name -> (the back end's argument, conversion).
+OPENCV_OPTIONS = {
+    "block_size": ("window", lambda v: check_window(v, "block_size")),  # bm-*: the matching window; sgm: the
+    # cost's box window before the aggregation
+    "uniqueness_ratio": ("uniqueness", lambda v: float(v) / 100.0),  # percent margin of the best cost
+    "disp12_max_diff": ("lr_tol", lambda v: None if v is None or v < 0 else float(v)),  # px; < 0 / None: off
+    "speckle_window": ("speckle_size", int),  # largest speckle region removed, px (0: off)
+    "speckle_range": ("speckle_diff", float),  # largest disparity step inside one region, px
+}
+_OPENCV_NAME = {inner: outer for outer, (inner, _) in OPENCV_OPTIONS.items()}
+
+
+def from_opencv_names(options: dict) -> dict:
+    """Matcher options (OpenCV's vocabulary) -> the back end's arguments; the back end's own names for
+    those knobs are refused with one line naming the option to use."""
+    out = {}
+    for key, value in options.items():
+        if key in _OPENCV_NAME:
+            raise StereoInputError(f"{key}: this option is called {_OPENCV_NAME[key]} (OpenCV's name and unit)")
+        inner, convert = OPENCV_OPTIONS.get(key, (key, None))
+        out[inner] = convert(value) if convert is not None else value
+    return out
+
+
+BM_DEFAULTS = dict(subpixel="parabola", uniqueness_ratio=10, disp12_max_diff=1, median=0, speckle_window=0,
+                   speckle_range=1, fill=False)
+_BACK_END = from_opencv_names(BM_DEFAULTS)  # the same defaults in the back end's argument names
 
 # Chosen on the six real pairs of ../shared/data (bad-2 after the textbook fill, see the module doc):
 # census 7x7 (48 bits, pixelwise), P1 = 2 and P2 = 48 Hamming bits with P2 lowered across intensity edges
 # (P2 / (1 + 20 |dI|), dI in [0, 1], never below P1), 8 paths, parabola, uniqueness 5 %, LR tolerance 1 px,
 # 3x3 median over valid pixels, speckles < 100 px (steps <= 1 px) removed.
-SGM_DEFAULTS = dict(cost="census", census_window=7, window=1, P1=2.0, P2=48.0, p2_alpha=20.0, paths=8,
-                    subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3, speckle_size=100,
-                    speckle_diff=1.0, fill=False)
+SGM_DEFAULTS = dict(cost="census", census_window=7, block_size=1, P1=2.0, P2=48.0, p2_alpha=20.0, paths=8,
+                    subpixel="parabola", uniqueness_ratio=5, disp12_max_diff=1, median=3, speckle_window=100,
+                    speckle_range=1, fill=False)
 
 
 def select_and_filter(cost: torch.Tensor, *, subpixel: str | None = "parabola", uniqueness: float = 0.1,
@@ -97,7 +123,7 @@ def _filter(selection: tuple, cost: torch.Tensor | None, *, median: int, speckle
 
 def _split(options: dict, defaults: dict) -> tuple[dict, dict]:
     merged = {**defaults, **options}
-    back = {k: merged.pop(k) for k in list(merged) if k in BM_DEFAULTS}
+    back = {k: merged.pop(k) for k in list(merged) if k in _BACK_END}
     return merged, back
 
 
@@ -111,7 +137,7 @@ def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost:
     the output has ``cost_volume=None``; ``keep_volume=True`` (or a torch backend) builds the volume and
     returns it as ``cost_volume``.
     """
-    cost_opts, back = _split(options, BM_DEFAULTS)
+    cost_opts, back = _split(options, _BACK_END)
     if not keep_volume and use_numba(left, right, backend=cost_opts.get("backend", "auto")):
         selection = block_select_checked(left, right, max_disp, cost, check_window(window), back.pop("subpixel"),
                                          back.pop("uniqueness"), back.pop("lr_tol"), **cost_opts)
@@ -123,12 +149,13 @@ def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost:
 def _bm(name: str, cost: str, window: int, description: str, **fixed):
     @register(name, kind="classical", description=description)
     def run(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
-        opts = {"window": window, **fixed, **options}
+        opts = from_opencv_names({**BM_DEFAULTS, "block_size": window, **fixed, **options})
         return block_matching(left, right, max_disp, cost, opts.pop("window"), **opts)
 
     run.__name__ = name.replace("-", "_")
-    run.__doc__ = (f"{description}. Options: window, subpixel, uniqueness, lr_tol, median, speckle_size, fill, "
-                   "keep_volume (return the cost volume; slower).")
+    run.__doc__ = (f"{description}. Options (OpenCV's names and units, :data:`OPENCV_OPTIONS`): block_size, "
+                   "subpixel, uniqueness_ratio (%), disp12_max_diff (px, < 0 = off), median, speckle_window, "
+                   "speckle_range, fill, keep_volume (return the cost volume; slower).")
     return run
 
 
@@ -158,13 +185,15 @@ def _mixed_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: torch
 def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
     """Semi-global matching (Hirschmüller 2008) on a census (default) or any ``cost`` volume.
 
-    Options (defaults in :data:`SGM_DEFAULTS`): ``cost``, ``census_window``, ``window`` (cost aggregation,
-    1 = pixelwise), ``P1``, ``P2`` (in cost units: Hamming bits for census), ``p2_alpha`` (P2 adaptation
-    to the left image gradient), ``paths`` (4/8/16), then the back-end options of
-    :func:`select_and_filter`. The returned ``cost_volume`` is the aggregated cost; ``confidence`` is its
+    Options (defaults in :data:`SGM_DEFAULTS`; OpenCV's names and units where StereoSGBM has the knob,
+    :data:`OPENCV_OPTIONS`): ``cost``, ``census_window``, ``block_size`` (box window of the cost before the
+    aggregation, 1 = pixelwise), ``P1``, ``P2`` (in cost units: Hamming bits for census), ``p2_alpha`` (P2
+    adaptation to the left image gradient), ``paths`` (4/8/16), then the back end of :func:`select_and_filter`:
+    ``subpixel``, ``uniqueness_ratio`` (%), ``disp12_max_diff`` (px, < 0 = no LR check), ``median``,
+    ``speckle_window``, ``speckle_range``, ``fill``. The returned ``cost_volume`` is the aggregated cost; ``confidence`` is its
     cost margin (:func:`~stereonet.select.confidence.cost_margin_confidence`), 0 on invalid pixels.
     """
-    opts = {**SGM_DEFAULTS, **options}
+    opts = from_opencv_names({**SGM_DEFAULTS, **options})
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
     cost_opts, back = _split(opts, {})
     cost_name, window = cost_opts.pop("cost"), cost_opts.pop("window")

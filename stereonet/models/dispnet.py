@@ -30,13 +30,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from stereonet.aggregate.soft import soft_argmax
 from stereonet.checks import StereoInputError, check_image_pair
+from stereonet.cost.correlation import correlation_1d, group_correlation_1d
 from stereonet.models.layers import (
     InputPadder,
     conv3d_block,
     conv_block,
-    correlation_1d,
-    group_correlation_1d,
     local_correlation,
     standardize_image,
     unit_channels,
@@ -201,8 +201,7 @@ class DispNet(nn.Module):
                                        self.groups)  # BxGxD4xH/4xW/4
             corr = gwc.mean(dim=1)  # the plain correlation (mean over all channels), BxD4xH/4xW/4
             logits = corr * self.corr_scale + self.corr_agg(gwc * self.groups)[:, 0]
-        levels = torch.arange(corr.shape[1], device=corr.device, dtype=corr.dtype).view(1, -1, 1, 1)
-        d_match = (logits.softmax(dim=1) * levels).sum(dim=1, keepdim=True) * 4.0  # Bx1xH/4xW/4, input pixels
+        d_match = soft_argmax(logits) * 4.0  # Bx1xH/4xW/4, input pixels
         e3 = self.enc3(torch.cat([corr, self.redir(e2_l)], dim=1))
         e4 = self.enc4(e3)
 

@@ -48,12 +48,17 @@ def image_mean_std(image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return mean.to(image.dtype), std.to(image.dtype)
 
 
-def standardize_image(image: torch.Tensor) -> torch.Tensor:
-    """Per-image, per-channel zero mean / unit std, so networks see the same statistics on any photo.
+def standardize_image(image: torch.Tensor, grey: bool = False) -> torch.Tensor:
+    """The one image standardisation of the networks: per-image, per-channel zero mean / unit std (+ 0.01),
+    so they see the same statistics on any photo.
 
-    image: :math:`(B, C, H, W)` in [0, 1]; grey (C = 1) is repeated to 3 channels. Returns :math:`(B, 3, H, W)`.
+    image: :math:`(B, C, H, W)` in [0, 1]. ``grey=False`` (DispNet, SMD): grey (C = 1) is repeated to 3
+    channels, returns :math:`(B, 3, H, W)`; ``grey=True`` (the Siamese tower, as MC-CNN normalises): the
+    channel mean is standardised, returns :math:`(B, 1, H, W)`.
     """
-    if image.shape[1] == 1:
+    if grey:
+        image = image.mean(dim=1, keepdim=True) if image.shape[1] != 1 else image
+    elif image.shape[1] == 1:
         image = image.expand(-1, 3, -1, -1)
     mean, std = image_mean_std(image)
     return (image - mean) / (std + 1e-2)  # 1e-2: keeps flat images finite (std is ~0.2 on natural images)
@@ -63,54 +68,6 @@ def unit_channels(x: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
     """Scale each pixel's feature vector to unit length: :math:`(B, C, H, W)` -> same (``F.normalize`` along
     channels, written as a sum of squares because torch's strided channel norm is several times slower on CPU)."""
     return x * torch.rsqrt((x * x).sum(dim=1, keepdim=True) + eps * eps)
-
-
-def correlation_1d(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int) -> torch.Tensor:
-    """DispNet 1-D correlation along the scanline (a similarity volume, higher = better).
-
-    ``similarity[b, d, y, x] = mean_c feat_left[b, c, y, x] * feat_right[b, c, y, x - d]``, 0 where ``x - d < 0``.
-
-    Args:
-        feat_left, feat_right: :math:`(B, C, H, W)`.
-        max_disp: largest disparity in pixels of this feature scale; D = max_disp + 1 levels.
-
-    Returns:
-        similarity :math:`(B, D, H, W)`.
-    """
-    if feat_left.shape != feat_right.shape:
-        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
-    b, c, h, w = feat_left.shape
-    similarity = feat_left.new_zeros(b, max_disp + 1, h, w)  # BxDxHxW
-    for d in range(min(max_disp + 1, w)):
-        similarity[:, d, :, d:] = (feat_left[..., d:] * feat_right[..., : w - d]).mean(dim=1)
-    return similarity
-
-
-def group_correlation_1d(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int,
-                         groups: int) -> torch.Tensor:
-    """Group-wise 1-D correlation (GwcNet): the channels split into ``groups``, one correlation per group.
-
-    ``similarity[b, g, d, y, x] = mean_{c in group g} feat_left[b, c, y, x] * feat_right[b, c, y, x - d]``,
-    0 where ``x - d < 0``; its mean over groups is :func:`correlation_1d`.
-
-    Args:
-        feat_left, feat_right: :math:`(B, C, H, W)`, C divisible by ``groups``.
-        max_disp: largest disparity in pixels of this feature scale; D = max_disp + 1 levels.
-
-    Returns:
-        similarity :math:`(B, G, D, H, W)`.
-    """
-    if feat_left.shape != feat_right.shape:
-        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
-    b, c, h, w = feat_left.shape
-    if c % groups:
-        raise StereoInputError(f"groups: expected a divisor of the {c} feature channels, got {groups}")
-    fl = feat_left.view(b, groups, c // groups, h, w)  # BxGx(C/G)xHxW
-    fr = feat_right.view(b, groups, c // groups, h, w)
-    similarity = feat_left.new_zeros(b, groups, max_disp + 1, h, w)  # BxGxDxHxW
-    for d in range(min(max_disp + 1, w)):
-        similarity[:, :, d, :, d:] = (fl[..., d:] * fr[..., : w - d]).mean(dim=2)
-    return similarity
 
 
 def warp_right(feat_right: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:

@@ -14,18 +14,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from stereonet.checks import StereoInputError, check_shape
+from stereonet.cost.correlation import correlation_1d
 from stereonet.kernels import use_numba
-from stereonet.models.layers import image_mean_std
+from stereonet.models.layers import standardize_image
 
 INVALID_COST = 2.0
 """Cost of a pixel whose match would fall outside the right image: the largest possible 1 - <f_l, f_r>."""
-
-
-def _grey_standardized(image: torch.Tensor) -> torch.Tensor:
-    """(B, C, H, W) in [0, 1] -> (B, 1, H, W) grey, zero mean and unit std per image (as MC-CNN normalises)."""
-    grey = image.mean(dim=1, keepdim=True) if image.shape[1] != 1 else image
-    mean, std = image_mean_std(grey)  # float64 statistics: every runtime gets the same (see image_mean_std)
-    return (grey - mean) / (std + 1e-2)  # 1e-2: keeps flat images finite
 
 
 class SiameseNet(nn.Module):
@@ -57,7 +51,7 @@ class SiameseNet(nn.Module):
         The image is replicate-padded by the receptive radius, so every pixel (borders too) gets a feature
         computed exactly like during training.
         """
-        x = _grey_standardized(image)
+        x = standardize_image(image, grey=True)
         x = F.pad(x, (self.radius,) * 4, mode="replicate")
         return F.normalize(self.tower(x), dim=1)
 
@@ -68,7 +62,7 @@ class SiameseNet(nn.Module):
         padding); fractional x interpolates the image bilinearly (sub-pixel positives).
         """
         b, n = x.shape
-        grey = F.pad(_grey_standardized(image), (self.radius,) * 4, mode="replicate")  # Bx1x(H+2r)x(W+2r)
+        grey = F.pad(standardize_image(image, grey=True), (self.radius,) * 4, mode="replicate")  # Bx1x(H+2r)x(W+2r)
         hp, wp = grey.shape[-2:]
         offs = torch.arange(-self.radius, self.radius + 1, device=x.device, dtype=x.dtype)
         px = x[:, :, None, None] + self.radius + offs[None, None, None, :]  # BxNx1xK (padded coordinates)
@@ -108,10 +102,7 @@ def siamese_cost_volume(feat_left: torch.Tensor, feat_right: torch.Tensor, max_d
         vols = [torch.from_numpy(feature_cost_hwd(hwf(feat_left[i]), hwf(feat_right[i]), max_disp + 1,
                                                   np.float32(INVALID_COST))) for i in range(b)]
         return (torch.stack(vols) if b > 1 else vols[0][None]).permute(0, 3, 1, 2)  # BxHxWxD seen as BxDxHxW
-    cost = feat_left.new_full((b, max_disp + 1, h, w), INVALID_COST)  # BxDxHxW
-    for d in range(min(max_disp + 1, w)):
-        cost[:, d, :, d:] = 1.0 - (feat_left[..., d:] * feat_right[..., : w - d]).sum(dim=1)
-    return cost
+    return 1.0 - correlation_1d(feat_left, feat_right, max_disp, reduce="sum", fill=1.0 - INVALID_COST)
 
 
 def sample_training_pixels(disparity: torch.Tensor, valid: torch.Tensor, num_samples: int, neg_low: float,

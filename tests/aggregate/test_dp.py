@@ -7,10 +7,11 @@ import math
 import pytest
 import torch
 
-from stereonet.aggregate.dp import energy_dp, fill_left_occluded, scanline_dp, scanline_dp_path
+from stereonet.aggregate.dp import energy_dp, scanline_dp, scanline_dp_path
 from stereonet.aggregate.mrf import left_occlusions_from_disparity
 from stereonet.checks import StereoInputError
 from stereonet.matchers import match
+from stereonet.select.fill import fill_occlusions, scanline_fill
 
 
 def abs_diff_cost(left: torch.Tensor, right: torch.Tensor, max_disp: int) -> torch.Tensor:
@@ -129,7 +130,11 @@ def test_energy_dp_is_optimal_and_smooths():
 def test_fill_left_occluded():
     disp = torch.tensor([[9, 4, 9, 9, 6, 9, 1]])
     occ = torch.tensor([[True, False, True, True, False, True, False]])
-    assert fill_left_occluded(disp, occ).tolist() == [[4, 4, 4, 4, 6, 6, 1]]
+    assert scanline_fill(disp, ~occ, "left").tolist() == [[4, 4, 4, 4, 6, 6, 1]]
+    # the same rule through the one public fill (B, 1, H, W); the textbook rule picks the smaller neighbour
+    four = lambda t: t.view(1, 1, 1, -1).float()
+    assert fill_occlusions(four(disp), four(~occ).bool(), rule="left").flatten().tolist() == [4, 4, 4, 4, 6, 6, 1]
+    assert fill_occlusions(four(disp), four(~occ).bool()).flatten().tolist() == [4, 4, 4, 4, 6, 1, 1]
 
 
 def test_dp_matcher(textured_pair):

@@ -63,5 +63,22 @@ def test_registered_bad_input():
         matchers.match("bm-sad", left, right, 96)
     with pytest.raises(StereoInputError, match="right"):
         matchers.match("bm-ncc", left, right[:, :1], 8)
-    with pytest.raises(StereoInputError, match="window"):
-        matchers.match("bm-sad", left, right, 8, window=4)
+    with pytest.raises(StereoInputError, match="block_size"):
+        matchers.match("bm-sad", left, right, 8, block_size=4)
+
+
+def test_options_use_opencv_names_and_units():
+    """uniqueness_ratio in percent, disp12_max_diff in px (< 0: no LR check), speckle_window / speckle_range,
+    block_size, as cv2.StereoSGBM; the back end's own names are refused with the name to use."""
+    left, right = _plane()
+    default = matchers.match("sgm", left, right, 8)
+    explicit = matchers.match("sgm", left, right, 8, block_size=1, uniqueness_ratio=5, disp12_max_diff=1,
+                              speckle_window=100, speckle_range=1)
+    assert torch.equal(default.disparity, explicit.disparity) and torch.equal(default.valid, explicit.valid)
+    no_lr = matchers.match("bm-sad", left, right, 8, disp12_max_diff=-1, uniqueness_ratio=0)
+    strict = matchers.match("bm-sad", left, right, 8, disp12_max_diff=0, uniqueness_ratio=30)
+    assert no_lr.valid.all() and not strict.valid.all()
+    for old, new in [("uniqueness", "uniqueness_ratio"), ("lr_tol", "disp12_max_diff"),
+                     ("speckle_size", "speckle_window"), ("speckle_diff", "speckle_range"), ("window", "block_size")]:
+        with pytest.raises(StereoInputError, match=f"{old}: this option is called {new}"):
+            matchers.match("sgm", left, right, 8, **{old: 1})

@@ -6,11 +6,10 @@ import pytest
 import torch
 
 from stereonet.checks import StereoInputError
+from stereonet.cost.correlation import correlation_1d, group_correlation_1d
 from stereonet.models.dispnet import DispNet, DispNetOutput, predict_disparity
 from stereonet.models.layers import (
     InputPadder,
-    correlation_1d,
-    group_correlation_1d,
     local_correlation,
     unit_channels,
 )
