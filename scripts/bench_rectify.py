@@ -28,7 +28,9 @@ from pathlib import Path
 
 import torch
 
-from stereonet.geometry.bench import format_table, rendered_benchmark, rig_benchmark, summarize
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the benchmark's library beside this script
+from rectify_bench_lib import format_table, rendered_benchmark, rig_benchmark, summarize  # noqa: E402
+
 from stereonet.io.atomic import atomic_write_text
 
 REPO = Path(__file__).resolve().parents[1]  # stereonet itself comes from the (editable) install

@@ -1,4 +1,5 @@
-"""Rectification benchmark on data_gen's unrectified rigs: ours vs OpenCV, calibrated and uncalibrated.
+"""Library of scripts/bench_rectify.py (benchmark tooling, outside the package; tests/geometry/test_data_gen_rigs.py
+loads it by path). Rectification benchmark on data_gen's unrectified rigs: ours vs OpenCV, calibrated and uncalibrated.
 
 For every rig (``data_gen.sample_rig`` with the same random stream as ``data_gen.render_pair(seed, index,
 rectified=False)``) we draw 3D points with disparities in the rig's range, project them with **data_gen's own

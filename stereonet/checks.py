@@ -15,6 +15,11 @@ class StereoInputError(ValueError):
     """Bad input to a public stereonet function; the message names the argument."""
 
 
+class DegenerateGeometryError(StereoInputError):
+    """The input is well-formed but geometrically degenerate (too few points, collinear or coplanar points,
+    pure rotation, an epipole that cannot be sent to infinity...). The message says which case."""
+
+
 def _shape(t: torch.Tensor) -> tuple[int, ...]:
     return tuple(int(s) for s in t.shape)
 

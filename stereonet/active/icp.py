@@ -305,8 +305,8 @@ def feature_guess(scan_to: RangeScan, scan_from: RangeScan, threshold: float = 0
 
     Raises :class:`StereoInputError` when the images share too few consistent features (no overlap).
     """
+    from stereonet.checks import DegenerateGeometryError
     from stereonet.features.matching import match_sift
-    from stereonet.geometry.camera import DegenerateGeometryError
 
     for name, sc in (("scan_to", scan_to), ("scan_from", scan_from)):
         if sc.image is None or sc.depth is None or sc.K is None:

@@ -76,13 +76,16 @@ def occlusion_from_lr_check(disp_left: np.ndarray, valid_left: np.ndarray, disp_
     Returns:
         bool :math:`(H, W)`, True = occluded (always False where ``valid_left`` is False).
     """
-    h, w = disp_left.shape
-    xr = np.rint(np.arange(w)[None, :] - disp_left).astype(np.int64)  # HxW target column in the right view
-    inside = (xr >= 0) & (xr < w)
-    xr = np.clip(xr, 0, w - 1)
-    rows = np.arange(h)[:, None]
-    consistent = inside & valid_right[rows, xr] & (np.abs(disp_right[rows, xr] - disp_left) <= tol)
-    return valid_left & ~consistent
+    import torch
+
+    from stereonet.select.lr_check import left_right_check  # the one LR rule
+
+    def t(a: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(a))[None, None]
+
+    consistent = left_right_check(t(disp_left.astype(np.float64)), t(disp_right.astype(np.float64)), tol,
+                                  valid_right=t(valid_right.astype(bool)))  # float64: x - d as numpy did
+    return valid_left & ~consistent[0, 0].numpy()
 
 
 def same_size(a: Path, a_shape: Sequence[int], b: Path, b_shape: Sequence[int]) -> None:

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from stereonet.checks import StereoInputError, check_image, check_image_pair
+from stereonet.checks import DegenerateGeometryError, StereoInputError, check_image, check_image_pair
 from stereonet.cost.census import to_grey
-from stereonet.geometry.camera import DegenerateGeometryError
 
 __all__ = ["image_to_uint8", "match_descriptors", "match_sift"]
 

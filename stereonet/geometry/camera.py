@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from kornia.geometry.calibration import distort_points, undistort_points
 
-from stereonet.checks import StereoInputError, check_finite, check_shape
+from stereonet.checks import DegenerateGeometryError, StereoInputError, check_finite, check_shape  # noqa: F401 (re-exported)
 
 __all__ = [
     "DegenerateGeometryError",
@@ -35,9 +35,6 @@ __all__ = [
 DEPTH_EPS = 1e-12
 
 
-class DegenerateGeometryError(StereoInputError):
-    """The input is well-formed but geometrically degenerate (too few points, collinear or coplanar points,
-    pure rotation, an epipole that cannot be sent to infinity...). The message says which case."""
 
 
 def check_points(points: object, name: str, dim: int, min_count: int = 1) -> torch.Tensor:

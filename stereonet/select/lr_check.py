@@ -57,16 +57,20 @@ def wta_right(cost: torch.Tensor) -> torch.Tensor:
     return arg.unsqueeze(1)
 
 
-def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: float = 1.0) -> torch.Tensor:
-    """Left-right consistency check.
+def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: float = 1.0,
+                     valid_right: torch.Tensor | None = None) -> torch.Tensor:
+    """The one left-right consistency rule (matchers, and ground-truth occlusion in the dataset readers and
+    the training data).
 
     A left pixel ``x`` with disparity ``dL`` passes when its match ``xr = round(x - dL)`` is inside the right
-    image and ``|dL - disp_right(xr)| <= tol``. Failing pixels are occluded or mismatched.
+    image, the right disparity is known there (``valid_right``, when given) and ``|dL - disp_right(xr)| <= tol``.
+    Failing pixels are occluded or mismatched.
 
     Args:
         disp_left: :math:`(B, 1, H, W)` left-reference disparity.
         disp_right: :math:`(B, 1, H, W)` right-reference disparity (``x_left = x_right + d``).
         tol: tolerance in pixels.
+        valid_right: optional bool :math:`(B, 1, H, W)` mask of known right disparities.
 
     Returns:
         bool :math:`(B, 1, H, W)`, True = consistent.
@@ -79,5 +83,9 @@ def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: flo
     x = torch.arange(w, device=disp_left.device, dtype=disp_left.dtype).view(1, 1, 1, -1)
     xr = torch.round(x - disp_left)
     inside = (xr >= 0) & (xr <= w - 1)
-    d_r = disp_right.gather(3, xr.clamp(0, w - 1).long())
-    return inside & ((disp_left - d_r).abs() <= tol)
+    idx = xr.clamp(0, w - 1).long()
+    consistent = inside & ((disp_left - disp_right.gather(3, idx)).abs() <= tol)
+    if valid_right is not None:
+        check_shape(valid_right, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "valid_right")
+        consistent &= valid_right.gather(3, idx)
+    return consistent

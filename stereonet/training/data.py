@@ -278,12 +278,9 @@ def gt_nonoccluded(disparity: torch.Tensor, disparity_right: torch.Tensor, tol: 
 
     disparity, disparity_right: :math:`(1, H, W)` left- and right-referenced; returns bool :math:`(1, H, W)`.
     """
-    w = disparity.shape[-1]
-    x = torch.arange(w, dtype=disparity.dtype).expand_as(disparity)
-    xr = torch.round(x - disparity)
-    inside = (xr >= 0) & (xr <= w - 1)
-    d_r = disparity_right.gather(-1, xr.clamp(0, w - 1).long())
-    return inside & ((disparity - d_r).abs() <= tol)
+    from stereonet.select.lr_check import left_right_check  # the one LR rule
+
+    return left_right_check(disparity[None], disparity_right[None], tol)[0]
 
 
 def _training_fields(item: dict) -> dict:

@@ -3,13 +3,20 @@ OpenCV's stereoRectify / stereoRectifyUncalibrated through the same test in the 
 
 from __future__ import annotations
 
+import importlib.util
 import math
+from pathlib import Path
 
 import pytest
 import torch
 
 from stereonet.geometry import rectify_calibrated, rectify_points
-from stereonet.geometry.bench import rendered_benchmark, rig_benchmark, summarize
+
+_LIB = Path(__file__).resolve().parents[2] / "scripts" / "rectify_bench_lib.py"  # tooling, outside the package
+_spec = importlib.util.spec_from_file_location("rectify_bench_lib", _LIB)
+bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench)
+rendered_benchmark, rig_benchmark, summarize = bench.rendered_benchmark, bench.rig_benchmark, bench.summarize
 
 
 def _by_method(rows):
