@@ -60,7 +60,7 @@ def run_case(case: str, methods: list[str], repeats: int, budget: float) -> dict
             res[m]["strips"] = info.get("strips", 1)
             print(f"  {case} {m}: {res[m]['times'][-1]:.2f} s, peak {pm.peak_mib:.0f} MiB, "
                   f"{res[m]['strips']} strip(s)", flush=True)
-    for m, r in res.items():
+    for r in res.values():
         r["seconds"] = statistics.median(r.pop("times"))
         r["mde_s"] = w * h * (max_disp + 1) / r["seconds"] / 1e6
     ref = res.get("opencv-sgbm", {}).get("seconds")
