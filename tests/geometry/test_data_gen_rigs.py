@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,7 @@ from stereonet.geometry import rectify_calibrated, rectify_points
 _LIB = Path(__file__).resolve().parents[2] / "scripts" / "rectify_bench_lib.py"  # tooling, outside the package
 _spec = importlib.util.spec_from_file_location("rectify_bench_lib", _LIB)
 bench = importlib.util.module_from_spec(_spec)
+sys.modules.setdefault("rectify_bench_lib", bench)  # dataclasses look their module up there
 _spec.loader.exec_module(bench)
 rendered_benchmark, rig_benchmark, summarize = bench.rendered_benchmark, bench.rig_benchmark, bench.summarize
 
