@@ -44,20 +44,6 @@ def reference(method: str) -> str | None:
     return REFERENCE.get(method, "opencv-sgbm")
 
 
-def add_checkpoint_methods(entries: list[str]) -> list[str]:
-    """``LABEL=METHOD@CHECKPOINT`` entries registered as ``LABEL`` (a learned matcher with other weights)."""
-    names = []
-    for entry in entries:
-        label, sep, rest = entry.partition("=")
-        if sep:
-            method, _, ckpt = rest.partition("@")
-            fn = matchers.get_matcher(method, checkpoint=ckpt) if ckpt else matchers.get_matcher(method)
-            matchers.register(label, kind="learned", description=f"{method} with {ckpt}")(
-                lambda l, r, m, fn=fn: fn(l, r, m))
-        names.append(label)
-    return names
-
-
 def load_cones() -> tuple[torch.Tensor, torch.Tensor]:
     from stereonet.data import load_dataset, real_data_dir
 
@@ -121,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         cv2.setNumThreads(1)
         clock = time.process_time
 
-    methods = add_checkpoint_methods([m for m in args.methods.split(",") if m])
+    methods = [matchers.register_checkpoint_variant(m) for m in args.methods.split(",") if m]
     for m in list(methods):
         ref = reference(m)
         if ref and ref not in methods:

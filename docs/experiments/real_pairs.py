@@ -6,18 +6,8 @@ import sys
 
 from stereonet import matchers
 from stereonet.evaluation import expand_data_specs, format_table, run_evaluation
-from stereonet.matchers import register
 
-methods, labels = [], []
-for arg in sys.argv[1].split(","):
-    label, _, rest = arg.partition("=")
-    name, _, ckpt = (rest or label).partition("@")
-    if ckpt:
-        fn = matchers.get_matcher(name, checkpoint=ckpt)
-        register(label, kind="learned", description="exp")(lambda l, r, m, fn=fn: fn(l, r, m))
-        methods.append(label)
-    else:
-        methods.append(name)
+methods = [matchers.register_checkpoint_variant(arg) for arg in sys.argv[1].split(",")]
 specs = sys.argv[2].split(";") if len(sys.argv) > 2 else ["real"]
 
 ev = run_evaluation(methods, expand_data_specs(",".join(specs)), fill=True, progress=False)

@@ -131,8 +131,6 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             raise StereoInputError(f"{name}: expected an integer >= 1, got {v!r}")
     weights_right = check_edge_weights(weights_right, cost, "weights_right")
     weights_down = check_edge_weights(weights_down, cost, "weights_down")
-    if backend not in ("auto", "numba", "torch"):
-        raise StereoInputError(f"backend: expected 'auto', 'numba' or 'torch', got {backend!r}")
     numba_path = use_numba(cost.detach(), backend=backend, float32_only=False)  # bp detaches the cost
     cost = cost.detach()
     ones = torch.ones_like(cost[:, :1])

@@ -28,7 +28,6 @@ from stereonet.checks import StereoInputError, check_cost_volume
 from stereonet.kernels import use_numba
 from stereonet.select.fill import scanline_fill
 
-BACKENDS = ("auto", "numba", "torch")
 _MATCH, _LEFT_OCCLUDED, _RIGHT_OCCLUDED = 0, 1, 2
 
 
@@ -54,8 +53,6 @@ class EnergyDPResult(NamedTuple):
 
 
 def _resolve_backend(backend: str, cost: torch.Tensor) -> str:
-    if backend not in BACKENDS:
-        raise StereoInputError(f"backend: expected one of {BACKENDS}, got {backend!r}")
     return "numba" if use_numba(cost, backend=backend, float32_only=False) else "torch"
 
 

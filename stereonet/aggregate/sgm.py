@@ -176,8 +176,6 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
         :math:`(B, D, H, W)` aggregated cost ``S = sum_r L_r`` (dtype of ``cost``; the numba backend
         computes in float32). The numba result is a permuted view of a ``(B, H, W, D)`` buffer.
     """
-    if backend not in ("auto", "torch", "numba"):
-        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide=not _guide_checked)
     if not use_numba(cost, backend=backend, float32_only=False):  # the kernel computes in float32
         return sgm_aggregate_torch(cost, P1, P2, paths, image, p2_alpha)

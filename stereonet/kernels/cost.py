@@ -1,6 +1,6 @@
 """Numba CPU helpers of the cost volumes: box means of ``(H, W, C)`` float32 images, census codes and the
-out-of-image fill of ``(H, W, D)`` volumes, the learned-feature cost and the mix of two volumes. The volumes themselves are computed row by row by
-:mod:`stereonet.kernels.block`. Rows (or columns) run in parallel with ``prange``.
+out-of-image fill of ``(H, W, D)`` volumes, the learned-feature cost and the mix of two volumes. The classical
+volumes themselves are computed row by row by :mod:`stereonet.kernels.block`. Rows (or columns) run in parallel with ``prange``.
 """
 
 from __future__ import annotations

@@ -113,7 +113,7 @@ def _margin_scalar(c, exclude, eps):
     return min(max(m, np.float32(0.0)), np.float32(1.0))
 
 
-# fastmath=False: +inf is the "no competitor" sentinel and NaN must never win (see _confidence_numba)
+# fastmath=False: +inf is the "no competitor" sentinel and NaN must never win (see stereonet.kernels.confidence)
 @numba.njit(parallel=True, cache=True, fastmath=False)
 def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf):
     """The one selection pass of :func:`select_hwd` and (``with_conf``) :func:`select_confidence_hwd`;

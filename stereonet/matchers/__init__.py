@@ -96,6 +96,20 @@ def match(name: str, left: torch.Tensor, right: torch.Tensor, max_disp: int, **o
     return get_matcher(name, **options)(left, right, max_disp)
 
 
+def register_checkpoint_variant(entry: str) -> str:
+    """``LABEL=METHOD@CHECKPOINT`` (or ``METHOD@CHECKPOINT``): register ``LABEL`` (default: the entry) as the
+    learned matcher ``METHOD`` with other weights, for experiments and benchmarks; returns the name to run.
+    Without a checkpoint the method's own name is returned."""
+    label, sep, rest = entry.partition("=")
+    method, _, checkpoint = (rest if sep else entry).partition("@")
+    if not checkpoint:
+        return method
+    fn = get_matcher(method, checkpoint=checkpoint)
+    if label not in _REGISTRY:
+        register(label, kind="learned", description=f"{method} with {checkpoint}")(lambda l, r, m: fn(l, r, m))
+    return label
+
+
 def weights_available(name: str) -> bool:
     """Whether matcher ``name`` can run without an explicit checkpoint (always True when it needs none;
     for a learned matcher: whether the shipped weights of its network are installed)."""

@@ -131,13 +131,14 @@ def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost:
                    keep_volume: bool = False, **options) -> StereoOutput:
     """Block matching with ``cost`` over ``window`` + the local back end (:func:`select_and_filter`).
 
-    Inputs must be checked already (the matcher registry does). For float32 CPU input without gradient
+    Inputs must be checked already (the matcher registry does), and ``options`` must hold every back-end
+    option (the registered ``bm-*`` merge :data:`BM_DEFAULTS` first). For float32 CPU input without gradient
     and ``keep_volume=False`` the volume is never built: :func:`~stereonet.select.wta.block_select_checked`
     fuses cost, window sums and selection in one numba pass (same disparities as the volume path) and
     the output has ``cost_volume=None``; ``keep_volume=True`` (or a torch backend) builds the volume and
     returns it as ``cost_volume``.
     """
-    cost_opts, back = _split(options, _BACK_END)
+    cost_opts, back = _split(options, {})  # the registered bm-* merged BM_DEFAULTS already
     if not keep_volume and use_numba(left, right, backend=cost_opts.get("backend", "auto")):
         selection = block_select_checked(left, right, max_disp, cost, check_window(window), back.pop("subpixel"),
                                          back.pop("uniqueness"), back.pop("lr_tol"), **cost_opts)

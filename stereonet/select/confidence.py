@@ -43,8 +43,6 @@ def cost_margin_confidence(cost: torch.Tensor, exclude: int = 1, backend: str = 
     b, d, h, w = cost.shape
     if d < 2:
         raise StereoInputError(f"cost: expected at least 2 disparities, got shape {tuple(cost.shape)}")
-    if backend not in ("auto", "torch", "numba"):
-        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     if use_numba(cost, backend=backend):
         from stereonet.kernels.confidence import cost_margin_hwd
 

@@ -88,8 +88,6 @@ def select_disparity(cost: torch.Tensor, subpixel: str | None = "parabola", uniq
 
     check_cost_volume(cost)
     method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
-    if backend not in ("auto", "torch", "numba"):
-        raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     if not use_numba(cost, backend=backend):
         disp_int, min_cost = wta(cost)
         unique = uniqueness_mask(cost, disp_int, uniqueness)

@@ -8,6 +8,7 @@ import sys
 import pytest
 import torch
 
+from stereonet import matchers
 from stereonet.checks import StereoInputError
 from stereonet.matchers import available, match
 from stereonet.models.dispnet import DispNet
@@ -93,3 +94,19 @@ def test_siamese_census_sgm_mixes_the_learned_cost_into_sgm():
     assert mixed.confidence is not None
     with pytest.raises(ValueError, match="learned_weight"):
         match("siamese-census-sgm", left, right, 16, learned_weight=1.5)
+
+
+@pytest.mark.skipif(not matchers.weights_available("siamese"), reason="shipped siamese weights not installed")
+def test_register_checkpoint_variant_runs_the_method_with_those_weights(monkeypatch):
+    from stereonet.models.weights import default_weights_path
+
+    monkeypatch.setattr(matchers, "_REGISTRY", dict(matchers._REGISTRY))  # leave the real registry alone
+    ckpt = default_weights_path("siamese")
+    assert matchers.register_checkpoint_variant("siamese") == "siamese"
+    name = matchers.register_checkpoint_variant(f"mine=siamese@{ckpt}")
+    assert name == "mine" and matchers.spec("mine").kind == "learned"
+    g = torch.Generator().manual_seed(0)
+    left = torch.rand(1, 3, 24, 40, generator=g)
+    right = torch.roll(left, -2, dims=-1)
+    assert torch.equal(matchers.match("mine", left, right, 8).disparity,
+                       matchers.match("siamese", left, right, 8, checkpoint=str(ckpt)).disparity)
