@@ -75,19 +75,23 @@ def select_hwd(vol, method, ratio, lr_tol):
     and disp_right, i.e. before sub-pixel refinement). Each row is transposed to (D, W) and selected by
     :func:`select_row_t` (:func:`_select_kernel` without the confidence).
     """
-    return _select_kernel(vol, method, ratio, lr_tol, np.float32(0.0), False)[:5]
+    return _select_kernel(vol, method, ratio, lr_tol, np.float32(0.0), False, np.float32(1.0))[:5]
 
 
-def select_confidence_hwd(vol, method, ratio, lr_tol, eps):
+def select_confidence_hwd(vol, method, ratio, lr_tol, eps, inv_scale=1.0):
     """:func:`select_hwd` plus the cost-margin confidence (H, W) float32 of
     :func:`stereonet.select.confidence.cost_margin_confidence` with ``exclude=1``, from the same pass:
     its best cost is the WTA minimum and its competitor the uniqueness test's second best (both over
     ``|d - best| > 1``). Pixels whose best or second is not finite get the general rule
     (:func:`_margin_scalar`), so the confidence equals the separate kernel's on any volume.
 
+    ``vol`` may also be a fixed-point int16 volume (:func:`stereonet.kernels.sgm.sgm_fixed_hwd`) with
+    ``inv_scale`` = 1 / s: each cost row is converted (``float32(v) * inv_scale``, exact for a power-of-two
+    scale) as it is transposed, so the result equals the selection of the float32 volume.
+
     Returns: ``(disp, min_cost, unique, disp_right, lr_ok, confidence)``.
     """
-    return _select_kernel(vol, method, ratio, lr_tol, np.float32(eps), True)
+    return _select_kernel(vol, method, ratio, lr_tol, np.float32(eps), True, np.float32(inv_scale))
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -115,9 +119,10 @@ def _margin_scalar(c, exclude, eps):
 
 # fastmath=False: +inf is the "no competitor" sentinel and NaN must never win (see stereonet.kernels.confidence)
 @numba.njit(parallel=True, cache=True, fastmath=False)
-def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf):
+def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf, inv_scale):
     """The one selection pass of :func:`select_hwd` and (``with_conf``) :func:`select_confidence_hwd`;
-    returns ``(disp, min_cost, unique, disp_right, lr_ok, confidence)`` (confidence zeros without it)."""
+    returns ``(disp, min_cost, unique, disp_right, lr_ok, confidence)`` (confidence zeros without it).
+    The costs are ``vol * inv_scale`` (1 for a float32 volume: the same bits)."""
     H, W, D = vol.shape
     disp = np.empty((H, W), np.float32)
     min_cost = np.empty((H, W), np.float32)
@@ -137,7 +142,7 @@ def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf):
         best_r = np.empty(W, np.float32)
         strip = np.zeros((1, 1, 4), np.float32)
         for y in range(chunk * H // n_chunks, (chunk + 1) * H // n_chunks):
-            transpose_row(vol[y], T)
+            transpose_row_scaled(vol[y], T, inv_scale)
             # the second best is needed for the confidence even without a uniqueness test
             select_row_t(T, y, method, keep, ratio > 0 or with_conf, False, disp, min_cost, unique, dint, strip,
                          disp_right, best, bi, second, best_r)
@@ -151,7 +156,7 @@ def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf):
                 c1 = best[x]
                 c2 = second[x]
                 if not (np.isfinite(c1) and (np.isfinite(c2) or c2 == inf)):
-                    conf[y, x] = _margin_scalar(vol[y, x], 1, eps)
+                    conf[y, x] = _margin_scalar(T[:, x], 1, eps)  # T[:, x] = this pixel's costs
                 elif c2 == inf:
                     conf[y, x] = 1.0
                 else:
@@ -178,6 +183,16 @@ def transpose_row(row, T):
         r = row[x]
         for d in range(D):
             T[d, x] = r[d]
+
+
+@numba.njit(cache=True, fastmath=False)
+def transpose_row_scaled(row, T, inv_scale):
+    """T[d, x] = float32(row[x, d]) * inv_scale (a float32 row with inv_scale = 1: the same bits)."""
+    W, D = row.shape
+    for x in range(W):
+        r = row[x]
+        for d in range(D):
+            T[d, x] = np.float32(r[d]) * inv_scale
 
 
 @numba.njit(cache=True, fastmath=False)

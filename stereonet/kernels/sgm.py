@@ -8,6 +8,12 @@ machine), each into its own buffer, and are added at the end. Every path cost is
 same float32 operations as the torch reference (``C + (t - m)``), so the per-path costs are identical and
 the sums differ only by the order of additions (tested bit for bit per path). The cost may be float32 or
 uint8 (census distances: :func:`stereonet.cost.volume.census_pixel_volumes_u8`).
+
+Fixed point (:func:`_sweep_i16`): for uint8 costs with penalties on a grid ``1 / s`` (``s = 2^k``,
+:func:`stereonet.aggregate.sgm.quantize_penalty`) every path cost is an integer multiple of ``1 / s``; the
+kernel computes ``s * L`` in int16 (16 SIMD lanes instead of 8, half the memory traffic), which is exact as
+long as ``paths * s * (max C + max P2)`` fits int16 (checked; otherwise the float32 kernel runs). The float32
+sums of such multiples are exact too, so both kernels give the same bits.
 """
 
 from __future__ import annotations
@@ -96,6 +102,18 @@ def min_of(a):
     return _min(_min(_min(m0, m1), _min(m2, m3)), _min(_min(m4, m5), _min(m6, m7)))
 
 
+@numba.njit(fastmath=False, inline="always")
+def _row_bases(y, H, W, dirs, row_ok, out_base, prev_base):
+    """Per direction g for image row y: whether the predecessor row exists, and the flat ring-buffer row
+    bases of this row's path costs (slot y % 3) and of the predecessor's (shifted by -dx, so that pixel x's
+    predecessor is at ``prev_base[g] + x``)."""
+    for g in range(dirs.shape[0]):
+        yp = y - dirs[g, 1]
+        row_ok[g] = 0 <= yp < H
+        out_base[g] = (g * 3 + y % 3) * W
+        prev_base[g] = (g * 3 + (yp % 3 if row_ok[g] else 0)) * W - dirs[g, 0]
+
+
 @numba.njit(fastmath=False, nogil=True, cache=True)
 def _sweep(C, S, P1, p2, dirs, downward, fresh):
     """One sweep over the rows (top-down if ``downward`` else bottom-up) computing every direction of
@@ -120,11 +138,7 @@ def _sweep(C, S, P1, p2, dirs, downward, fresh):
     row_ok = np.empty(G, np.bool_)
     for step in range(H):
         y = step if downward else H - 1 - step
-        for g in range(G):
-            yp = y - dirs[g, 1]
-            row_ok[g] = 0 <= yp < H
-            out_base[g] = (g * 3 + y % 3) * W
-            prev_base[g] = (g * 3 + (yp % 3 if row_ok[g] else 0)) * W - dirs[g, 0]
+        _row_bases(y, H, W, dirs, row_ok, out_base, prev_base)
         for k in range(W):
             x = k if downward else W - 1 - k
             c_row = C2[y * W + x]
@@ -146,7 +160,7 @@ def _sweep(C, S, P1, p2, dirs, downward, fresh):
                     M[o] = min_of(c_row)
 
 
-@numba.njit(parallel=True, cache=True, fastmath=False)  # exact float32 adds
+@numba.njit(parallel=True, cache=True, fastmath=False)  # exact float32 (or in-range int16) adds
 def _add_into(a, b):
     H = a.shape[0]
     for y in prange(H):
@@ -159,12 +173,141 @@ def sweep_groups(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.nonzero(down)[0], np.nonzero(~down)[0]
 
 
+_I16_SENTINEL = np.int16(0x3FFF)  # "no disparity here" in the padded int16 path rows: above every valid s*L
+# (<= 32767 / paths <= 8191) plus s*P1, and sentinel + s*P1 <= 32767 stays in range
+_I16_MAX = 32767
+
+
+@numba.njit(fastmath=False, inline="always")
+def _min16(a, b):
+    return a if a < b else b
+
+
+@numba.njit(fastmath=False, nogil=True, cache=True)
+def _sweep_i16(C, S, scale, P1, p2, dirs, downward, fresh):
+    """:func:`_sweep` in 16-bit fixed point: ``C`` uint8 (H, W, D), ``S`` int16 (H, W, D) receives
+    ``s * sum L`` (``fresh``: assigned by the first direction), ``scale`` = s, ``P1`` = s * P1 and ``p2``
+    (G, H, W) = s * P2 maps, all int16. Every value stays below :data:`_I16_SENTINEL` (the caller checks the
+    bound), so no operation wraps."""
+    H, W, D = C.shape
+    G = dirs.shape[0]
+    L = np.full((G * 3 * W, D + 2), _I16_SENTINEL, np.int16)
+    M = np.empty(G * 3 * W, np.int16)
+    C2 = C.reshape(H * W, D)
+    S2 = S.reshape(H * W, D)
+    cs = np.empty(D, np.int16)
+    out_base = np.empty(G, np.int64)
+    prev_base = np.empty(G, np.int64)
+    row_ok = np.empty(G, np.bool_)
+    for step in range(H):
+        y = step if downward else H - 1 - step
+        _row_bases(y, H, W, dirs, row_ok, out_base, prev_base)
+        for k in range(W):
+            x = k if downward else W - 1 - k
+            c_row = C2[y * W + x]
+            s_row = S2[y * W + x]
+            for d in range(D):
+                cs[d] = np.int16(c_row[d]) * scale
+            for g in range(G):
+                xp = x - dirs[g, 0]
+                o = out_base[g] + x
+                out = L[o]
+                mi = _I16_SENTINEL
+                if row_ok[g] and 0 <= xp < W:
+                    q = prev_base[g] + x
+                    prev = L[q]
+                    m = M[q]
+                    big = np.int16(m + p2[g, y, x])
+                    for d in range(D):
+                        t = _min16(_min16(prev[d + 1], np.int16(prev[d] + P1)),
+                                   _min16(np.int16(prev[d + 2] + P1), big))
+                        v = np.int16(cs[d] + np.int16(t - m))
+                        out[d + 1] = v
+                        mi = _min16(mi, v)
+                else:
+                    for d in range(D):
+                        out[d + 1] = cs[d]
+                        mi = _min16(mi, cs[d])
+                M[o] = mi
+                if fresh and g == 0:
+                    for d in range(D):
+                        s_row[d] = out[d + 1]
+                else:
+                    for d in range(D):
+                        s_row[d] += out[d + 1]
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def _i16_to_float(a, inv_scale, out):
+    """out = a * inv_scale (exact for int16 a and a power-of-two inv_scale)."""
+    H = a.shape[0]
+    for y in prange(H):
+        ay, oy = a[y], out[y]
+        for x in range(ay.shape[0]):
+            for d in range(ay.shape[1]):
+                oy[x, d] = np.float32(ay[x, d]) * inv_scale
+
+
+def fixed_point_scale(cost_hwd: np.ndarray, P1: float, p2: np.ndarray, paths: int,
+                      penalty_step: float | None) -> int | None:
+    """``s = 1 / penalty_step`` when the 16-bit kernel is exact for this uint8 cost and these penalties
+    (``s`` an integer power of two, penalties multiples of ``1 / s``, ``paths * s * (max C + max P2)`` within
+    int16), else None (the float32 kernel runs)."""
+    if penalty_step is None or cost_hwd.dtype != np.uint8 or cost_hwd.size == 0:
+        return None
+    s = 1.0 / float(penalty_step)
+    if s < 1 or s != round(s) or int(round(s)) & (int(round(s)) - 1):
+        return None
+    s = int(round(s))
+    p2s = p2.astype(np.float64) * s
+    if not (np.array_equal(p2s, np.round(p2s)) and float(P1) * s == round(float(P1) * s)):
+        return None
+    l_max = s * int(cost_hwd.max()) + (float(p2s.max()) if p2.size else 0.0)  # 0 <= s*L <= s*(C + P2)
+    if paths * l_max > _I16_MAX or l_max + s * float(P1) >= int(_I16_SENTINEL):
+        return None
+    return s
+
+
+def sgm_fixed_hwd(cost_hwd: np.ndarray, P1: float, p2: np.ndarray, dirs: np.ndarray, s: int) -> np.ndarray:
+    """``s * S`` as int16 (H, W, D) for a uint8 cost and penalties on the ``1 / s`` grid, where
+    :func:`fixed_point_scale` returned ``s`` (exact: ``S`` = the float32 kernel's result times ``s``).
+
+    The two sweeps run concurrently into two int16 buffers (added at the end) unless one thread or a volume
+    above :data:`CONCURRENT_MAX_BYTES`; then one buffer."""
+    P1s = np.int16(round(float(P1) * s))
+    p2s = np.round(p2.astype(np.float64) * s).astype(np.int16)
+    down, up = sweep_groups(dirs)
+    groups = [(np.ascontiguousarray(p2s[g]), np.ascontiguousarray(dirs[g]), flag)
+              for g, flag in ((down, True), (up, False)) if g.size]
+    if len(groups) == 1 or numba.get_num_threads() == 1 or 2 * cost_hwd.size > CONCURRENT_MAX_BYTES:
+        acc = np.empty(cost_hwd.shape, np.int16)
+        for i, (p2g, dg, flag) in enumerate(groups):
+            _sweep_i16(cost_hwd, acc, np.int16(s), P1s, p2g, dg, flag, i == 0)
+        return acc
+    buffers = [np.empty(cost_hwd.shape, np.int16) for _ in groups]
+    with ThreadPoolExecutor(max_workers=len(groups)) as pool:
+        list(pool.map(lambda job: _sweep_i16(cost_hwd, job[0], np.int16(s), P1s, *job[1], True),
+                      zip(buffers, groups)))
+    _add_into(buffers[0], buffers[1])  # exact: the total fits int16 (fixed_point_scale)
+    return buffers[0]
+
+
+def fixed_to_float(acc: np.ndarray, s: int) -> np.ndarray:
+    """float32 ``acc / s`` (exact) of an :func:`sgm_fixed_hwd` result."""
+    out = np.empty(acc.shape, np.float32)
+    _i16_to_float(acc, np.float32(1.0 / s), out)
+    return out
+
+
 CONCURRENT_MAX_BYTES = 256 * 2**20  # above this float32 volume size the two sweeps share one buffer (sequential)
 
 
-def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np.ndarray,
+                  penalty_step: float | None = None) -> np.ndarray:
     """Aggregated cost ``S`` (H, W, D) float32 of a cost ``(H, W, D)`` float32 or uint8 (integer costs such
-    as census Hamming distances: a quarter of the memory traffic, the same float32 path costs).
+    as census Hamming distances: a quarter of the memory traffic, the same float32 path costs; with
+    ``penalty_step`` = 1 / 2^k and penalties on that grid, the 16-bit kernel when it is exact:
+    :func:`fixed_point_scale`).
 
     The directions split into a top-down and a bottom-up sweep that run concurrently on two threads
     (numba releases the GIL), each into its own buffer, added at the end; for volumes above
@@ -179,6 +322,9 @@ def sgm_numba_hwd(cost_hwd: np.ndarray, P1: np.float32, p2: np.ndarray, dirs: np
     """
     P1 = np.float32(P1)
     p2 = np.ascontiguousarray(p2, dtype=np.float32)
+    s = fixed_point_scale(cost_hwd, P1, p2, dirs.shape[0], penalty_step)
+    if s is not None:
+        return fixed_to_float(sgm_fixed_hwd(cost_hwd, P1, p2, dirs, s), s)
     down, up = sweep_groups(dirs)
     groups = [(np.ascontiguousarray(p2[g]), np.ascontiguousarray(dirs[g]), flag)
               for g, flag in ((down, True), (up, False)) if g.size]

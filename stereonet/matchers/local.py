@@ -11,8 +11,9 @@ slides the window sums along the rows and selects on each finished cost row
 (:func:`~stereonet.select.wta.block_select_checked`, tested equal to the volume path), so the output has
 ``cost_volume=None`` unless ``keep_volume=True``. Inputs are checked once, by the matcher registry.
 ``sgm`` on the CPU (float32, no gradient, pixelwise census) computes the census volume as uint8
-(:func:`~stereonet.cost.volume.census_pixel_volumes_u8`) straight into the numba aggregation, and selects
-with the cost-margin confidence in one pass (:func:`~stereonet.select.wta.select_disparity_confidence`):
+(:func:`~stereonet.cost.volume.census_pixel_volumes_u8`) straight into the numba aggregation in 16-bit fixed
+point (:func:`~stereonet.aggregate.sgm.sgm_aggregate_fixed_hwd`), and selects with the cost-margin confidence
+in one pass from the int16 aggregate (:func:`~stereonet.select.wta.select_disparity_confidence_fixed`):
 the same numbers as the documented composition of public functions (tested equal).
 
 ``sgm`` defaults: :data:`SGM_DEFAULTS`, chosen on the six real pairs of ../shared/data against opencv-sgbm
@@ -30,7 +31,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from stereonet.aggregate.sgm import check_sgm_options, sgm_aggregate, sgm_aggregate_hwd
+from stereonet.aggregate.sgm import (
+    CENSUS_PENALTY_STEP,
+    check_sgm_options,
+    sgm_aggregate,
+    sgm_aggregate_fixed_hwd,
+    sgm_aggregate_hwd,
+)
 from stereonet.checks import StereoInputError, check_window
 from stereonet.cost import build_cost_volume
 from stereonet.cost.volume import (
@@ -42,7 +49,12 @@ from stereonet.kernels import use_numba
 from stereonet.matchers import register
 from stereonet.select.fill import fill_occlusions
 from stereonet.select.filters import median_filter, speckle_filter
-from stereonet.select.wta import block_select_checked, select_disparity, select_disparity_confidence
+from stereonet.select.wta import (
+    block_select_checked,
+    select_disparity,
+    select_disparity_confidence,
+    select_disparity_confidence_fixed,
+)
 from stereonet.types import StereoOutput
 
 # The matcher options use OpenCV's names and meanings where cv2.StereoBM / cv2.StereoSGBM have the knob
@@ -191,11 +203,18 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     aggregation, 1 = pixelwise), ``P1``, ``P2`` (in cost units: Hamming bits for census), ``p2_alpha`` (P2
     adaptation to the left image gradient), ``paths`` (4/8/16), then the back end of :func:`select_and_filter`:
     ``subpixel``, ``uniqueness_ratio`` (%), ``disp12_max_diff`` (px, < 0 = no LR check), ``median``,
-    ``speckle_window``, ``speckle_range``, ``fill``. The returned ``cost_volume`` is the aggregated cost; ``confidence`` is its
-    cost margin (:func:`~stereonet.select.confidence.cost_margin_confidence`), 0 on invalid pixels.
+    ``speckle_window``, ``speckle_range``, ``fill``, ``keep_volume``. ``confidence`` is the aggregated cost's
+    margin (:func:`~stereonet.select.confidence.cost_margin_confidence`), 0 on invalid pixels. The returned
+    ``cost_volume`` is the aggregated cost, except on the CPU fast path (16-bit fixed point, below) without
+    ``keep_volume=True``, where the float32 volume is never built (``cost_volume=None``, as for ``bm-*``).
+
+    Census costs are integers, so ``P1`` and the edge-adapted ``P2`` are rounded to multiples of
+    :data:`~stereonet.aggregate.sgm.CENSUS_PENALTY_STEP` (1/16 bit) in every backend; the CPU fast path then
+    aggregates in int16 (exact, OpenCV's SGBM also aggregates in 16 bits) and selects from it directly.
     """
     opts = from_opencv_names({**SGM_DEFAULTS, **options})
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
+    keep_volume = bool(opts.pop("keep_volume", False))
     cost_opts, back = _split(opts, {})
     cost_name, window = cost_opts.pop("cost"), cost_opts.pop("window")
     if cost_name not in ("census", "census_ad"):
@@ -203,6 +222,10 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     # the registry validated left/right: no second check of the images
     extra = cost_opts.pop("extra_cost", None)
     census_window = cost_opts.get("census_window", 5)
+    # census costs are integers (Hamming bits): penalties on a 1/16-bit grid make the recurrence exact in
+    # 16-bit fixed point (the same result in every backend; aggregate.sgm module doc). A mixed-in cost is in
+    # the same units and gets the same penalties (float32 kernel), so its weight 0 is plain sgm.
+    step = CENSUS_PENALTY_STEP if cost_name == "census" else None
     if (cost_name == "census" and window == 1 and set(cost_opts) <= {"census_window", "backend"}
             and isinstance(census_window, int) and 3 <= census_window <= CENSUS_U8_MAX_WINDOW
             and use_numba(left, right, backend=cost_opts.get("backend", "auto"))):
@@ -211,16 +234,31 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         # volume is added by one numba pass per image (mix_costs_hwd, the float32 sum of the torch path)
         directions = check_sgm_options(P1, P2, paths, p2_alpha)
         vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
+        if extra is None and not keep_volume:
+            fixed = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step)
+                     for i, v in enumerate(vols)]
+            if all(f is not None for f in fixed) and len({f[1] for f in fixed}) == 1:
+                # 16-bit fixed point: select straight from the int16 aggregate (no float32 volume)
+                del vols
+                selection, confidence = select_disparity_confidence_fixed(
+                    [f[0] for f in fixed], fixed[0][1], back.pop("subpixel"), back.pop("uniqueness"),
+                    back.pop("lr_tol"), left.dtype, left.device)
+                del fixed
+                out = _filter(selection, None, **back)
+                out.confidence = confidence * out.valid.to(confidence.dtype)
+                return out
+            del fixed  # fixed point not exact for these costs / penalties: the float32 kernel below
         if extra is not None:
             vols = _mixed_hwd(vols, *extra)
-        agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha).to(left.device)
+        agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step).to(left.device)
         del vols
     else:
         vol = build_cost_volume_checked(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
         if extra is not None:  # (w_own, w_extra, volume): a learned cost mixed in (siamese-census-sgm)
             w_own, w_extra, other = extra
             vol = w_own * vol + w_extra * other.to(vol)
-        agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, _guide_checked=True)
+        agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, penalty_step=step,
+                            _guide_checked=True)
         del vol
     # selection and the cost margin of the aggregated cost in one pass over it (select_and_filter +
     # cost_margin_confidence, the same numbers); confidence 0 where LR / uniqueness / speckles rejected

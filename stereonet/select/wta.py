@@ -136,6 +136,27 @@ def select_disparity_confidence(cost: torch.Tensor, subpixel: str | None = "para
     return _stack_selection(outs, cost.dtype, cost.device), conf
 
 
+def select_disparity_confidence_fixed(acc_hwd: list, s: int, subpixel: str | None = "parabola",
+                                      uniqueness: float = 0.0, lr_tol: float | None = None,
+                                      dtype: torch.dtype = torch.float32,
+                                      device: torch.device | str = "cpu") -> tuple[tuple, torch.Tensor]:
+    """:func:`select_disparity_confidence` of fixed-point volumes: ``acc_hwd`` a list of B int16
+    ``(H, W, D)`` arrays holding ``s * cost`` (:func:`stereonet.aggregate.sgm.sgm_aggregate_fixed_hwd`). The
+    same numbers as the float32 volume ``acc / s`` would give (converted exactly, row by row, inside the
+    selection pass), without materialising it."""
+    from stereonet.kernels.select import select_confidence_hwd
+    from stereonet.select.confidence import EPS
+
+    method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
+    outs, confs = [], []
+    for acc in acc_hwd:
+        res = select_confidence_hwd(acc, method, ratio, tol, np.float32(EPS), 1.0 / s)
+        outs.append([torch.from_numpy(a) for a in res[:5]])
+        confs.append(torch.from_numpy(res[5]))
+    conf = torch.stack(confs)[:, None].to(device=device, dtype=dtype)
+    return _stack_selection(outs, dtype, torch.device(device)), conf
+
+
 def _stack_selection(outs: list, dtype: torch.dtype, device: torch.device) -> tuple:
     """Per-item numpy/torch ``(disp, min_cost, unique, disp_right, lr_ok)`` (H, W) -> batched (B, 1, H, W)."""
     disp, min_cost, unique, disp_right, lr_ok = (

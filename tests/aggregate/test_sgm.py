@@ -65,6 +65,27 @@ def test_bad_input():
         sgm_aggregate(cost, 1, 2, image=torch.rand(1, 1, 5, 7))
     with pytest.raises(StereoInputError, match="backend"):
         sgm_aggregate(cost, 1, 2, backend="cuda")
+    with pytest.raises(StereoInputError, match="penalty_step"):
+        sgm_aggregate(cost, 1, 2, penalty_step=0.0)
+
+
+def test_penalty_step_rounds_every_penalty_in_every_backend():
+    """``penalty_step`` puts P1 and every edge-adapted P2 on the grid; torch and numba agree, and the result
+    differs from the exact penalties (the rounding is real) only slightly."""
+    from stereonet.aggregate.sgm import quantize_penalty
+
+    assert quantize_penalty(2.03, 1 / 16) == 2.0 and quantize_penalty(2.0, None) == 2.0
+    g = torch.Generator().manual_seed(3)
+    cost = torch.randint(0, 40, (1, 9, 12, 17), generator=g).float()
+    image = torch.rand(1, 3, 12, 17, generator=g)
+    maps = p2_maps(2.0, 48.0, sgm_directions(8), image, (1, 12, 17), 20.0, torch.float32, torch.device("cpu"),
+                   penalty_step=1 / 16)
+    assert torch.equal(maps * 16, torch.round(maps * 16)) and bool((maps >= 2.0).all())
+    ref = sgm_aggregate_torch(cost, 2.03, 48.0, 8, image, 20.0, penalty_step=1 / 16)
+    fast = sgm_aggregate(cost, 2.03, 48.0, 8, image, 20.0, backend="numba", penalty_step=1 / 16)
+    assert torch.equal(ref, fast)  # integer costs, penalties on a 1/16 grid: every sum is exact
+    exact = sgm_aggregate_torch(cost, 2.03, 48.0, 8, image, 20.0)
+    assert not torch.equal(ref, exact) and float((ref - exact).abs().max()) < 8 * 1.0
 
 
 def test_numba_sequential_sweeps_equal(monkeypatch):

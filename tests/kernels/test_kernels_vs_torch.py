@@ -17,12 +17,13 @@ from stereonet.aggregate.sgm import (
     DIRECTIONS_16,
     _path_torch,
     p2_maps_numpy,
+    quantize_penalty,
     sgm_aggregate,
     sgm_aggregate_torch,
 )
 from stereonet.cost import build_cost_volume
 from stereonet.kernels.block import ROW_BLOCK
-from stereonet.kernels.sgm import sgm_numba_hwd
+from stereonet.kernels.sgm import fixed_point_scale, fixed_to_float, sgm_fixed_hwd, sgm_numba_hwd
 from stereonet.matchers.local import select_and_filter
 from stereonet.select.confidence import cost_margin_confidence
 from stereonet.select.filters import median_filter
@@ -59,6 +60,71 @@ def test_sgm_kernel_uint8_costs_equal_float32(h, w, d):
     a = sgm_numba_hwd(cost, np.float32(2.0), p2, dirs)
     b = sgm_numba_hwd(cost.astype(np.uint8), np.float32(2.0), p2, dirs)
     assert b.dtype == np.float32 and np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("h, w, d", SGM_SHAPES)
+@pytest.mark.parametrize("step", [1 / 16, 1 / 4])
+def test_sgm_fixed_point_kernel_equals_torch_per_path_and_float_kernel(h, w, d, step):
+    """The 16-bit kernel on uint8 costs with penalties on the ``step`` grid: each path is the torch
+    recurrence (on the rounded penalties) bit for bit, and the 8- and 16-path sums equal the float32
+    kernel's exactly (every partial sum is a multiple of the step)."""
+    cost = _cost_hwd(h, w, d, seed=3 * d + h, integer=True)
+    grey = np.random.default_rng(w).random((h, w), dtype=np.float32)
+    P1 = quantize_penalty(1.3, step)
+    p2 = p2_maps_numpy(P1, quantize_penalty(30.0, step), DIRECTIONS_16, grey, 15.0, step)
+    assert np.array_equal(p2, np.round(p2 / np.float32(step)) * np.float32(step))  # on the grid
+    cost_t = torch.from_numpy(cost).permute(2, 0, 1)[None].contiguous()
+    u8 = cost.astype(np.uint8)
+    for i, (dx, dy) in enumerate(DIRECTIONS_16):
+        s = fixed_point_scale(u8, P1, p2[i:i + 1], 1, step)
+        assert s == round(1 / step)
+        fast = fixed_to_float(sgm_fixed_hwd(u8, P1, p2[i:i + 1], np.array([[dx, dy]], np.int64), s), s)
+        ref = _path_torch(cost_t, dx, dy, P1, torch.from_numpy(p2[i])[None])[0].permute(1, 2, 0)
+        assert torch.equal(torch.from_numpy(fast), ref), (dx, dy)
+    for n in (4, 8, 16):
+        dirs = np.asarray(DIRECTIONS_16[:n], np.int64)
+        a = sgm_numba_hwd(cost, np.float32(P1), p2[:n], dirs)  # float32 kernel
+        b = sgm_numba_hwd(u8, np.float32(P1), p2[:n], dirs, penalty_step=step)  # 16-bit kernel
+        assert fixed_point_scale(u8, P1, p2[:n], n, step) is not None
+        assert np.array_equal(a, b), n
+
+
+def test_sgm_fixed_point_falls_back_when_not_exact(monkeypatch):
+    """Fixed point only where it is exact: penalties off the grid, a step that is not 1/2^k, or a sum that
+    would overflow int16 (255-bit costs, 16 paths) run the float32 kernel, with the float32 result; the
+    sequential (one-buffer) branch gives the concurrent one's bits."""
+    from stereonet.kernels import sgm as kernel
+
+    rng = np.random.default_rng(0)
+    u8 = rng.integers(0, 49, (9, 21, 13)).astype(np.uint8)
+    dirs = np.asarray(DIRECTIONS_16[:8], np.int64)
+    p2 = np.full((8, 9, 21), 48.0, np.float32)
+    assert fixed_point_scale(u8, 2.0, p2, 8, 1 / 16) == 16
+    assert fixed_point_scale(u8, 2.0, p2 + np.float32(0.01), 8, 1 / 16) is None  # off the grid
+    assert fixed_point_scale(u8, 2.0, p2, 8, 0.1) is None  # not a power of two
+    assert fixed_point_scale(u8, 2.0, p2, 8, None) is None
+    assert fixed_point_scale(u8.astype(np.float32), 2.0, p2, 8, 1 / 16) is None  # float costs
+    big = np.full_like(u8, 255)
+    assert fixed_point_scale(big, 2.0, p2, 8, 1 / 16) is None  # 8 x 16 x (255 + 48) > 32767
+    assert np.array_equal(sgm_numba_hwd(big, np.float32(2.0), p2, dirs, penalty_step=1 / 16),
+                          sgm_numba_hwd(big.astype(np.float32), np.float32(2.0), p2, dirs))
+    concurrent = sgm_fixed_hwd(u8, 2.0, p2, dirs, 16)
+    monkeypatch.setattr(kernel, "CONCURRENT_MAX_BYTES", 0)
+    assert np.array_equal(sgm_fixed_hwd(u8, 2.0, p2, dirs, 16), concurrent)
+
+
+def test_fixed_point_selection_equals_float_selection():
+    """The selection pass reading an int16 ``s * S`` volume (converted row by row) gives the float32
+    volume's results exactly."""
+    from stereonet.kernels.select import select_confidence_hwd
+
+    rng = np.random.default_rng(1)
+    acc = rng.integers(0, 3000, (ROW_BLOCK + 3, 41, 19)).astype(np.int16)
+    acc[2, 5] = 7  # ties
+    ref = select_confidence_hwd(acc.astype(np.float32) / np.float32(16), 1, 0.05, 1.0, np.float32(1e-6))
+    got = select_confidence_hwd(acc, 1, 0.05, 1.0, np.float32(1e-6), 1.0 / 16)
+    for a, b in zip(ref, got):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
 
 
 @pytest.mark.parametrize("paths", [4, 8, 16])
@@ -123,22 +189,28 @@ def test_block_engine_volume_equals_torch_across_row_blocks(cost, window, kwargs
 
 
 def test_registered_sgm_fast_path_equals_public_composition():
-    """``sgm`` on CPU feeds a uint8 census volume to the kernel and selects with the confidence in one
-    pass; the result equals the documented composition of the public functions exactly."""
+    """``sgm`` on CPU feeds a uint8 census volume to the 16-bit kernel and selects with the confidence in
+    one pass from the int16 aggregate; the result equals the documented composition of the public functions
+    (penalties on the census grid) exactly, with and without ``keep_volume``, and the torch backend's too."""
+    from stereonet.aggregate.sgm import CENSUS_PENALTY_STEP
+
     g = torch.Generator().manual_seed(2)
     h, w = ROW_BLOCK + 7, 53
     big = torch.rand(2, 3, h, w + 6, generator=g)
     left, right = big[..., 6:].contiguous(), big[..., :w].contiguous()
     out = matchers.match("sgm", left, right, 20)
+    kept = matchers.match("sgm", left, right, 20, keep_volume=True)
     vol = build_cost_volume(left, right, 20, cost="census", window=1, census_window=7)
-    agg = sgm_aggregate(vol, 2.0, 48.0, paths=8, image=left, p2_alpha=20.0)
+    agg = sgm_aggregate(vol, 2.0, 48.0, paths=8, image=left, p2_alpha=20.0, penalty_step=CENSUS_PENALTY_STEP)
     ref = select_and_filter(agg, subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3, speckle_size=100,
                             speckle_diff=1.0, fill=False)
-    assert torch.equal(out.cost_volume, agg)
-    assert torch.equal(out.disparity, ref.disparity) and torch.equal(out.valid, ref.valid)
-    assert torch.equal(out.confidence, cost_margin_confidence(agg) * ref.valid.float())
+    assert out.cost_volume is None and torch.equal(kept.cost_volume, agg)
+    for o in (out, kept):
+        assert torch.equal(o.disparity, ref.disparity) and torch.equal(o.valid, ref.valid)
+        assert torch.equal(o.confidence, cost_margin_confidence(agg) * ref.valid.float())
     slow = matchers.match("sgm", left, right, 20, backend="torch")  # the float volume path, torch cost
-    assert torch.equal(slow.valid, out.valid)
+    assert torch.equal(slow.valid, out.valid) and torch.equal(slow.disparity, out.disparity)
+    assert torch.equal(slow.cost_volume, agg)
 
 
 # (B, F, H, W, max_disp): W < D, one feature, F not a multiple of a vector, several images
@@ -180,5 +252,5 @@ def test_sgm_with_a_mixed_in_volume_fast_path_equals_float_path():
     slow = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), backend="torch")
     torch.testing.assert_close(fast.cost_volume, slow.cost_volume, rtol=1e-6, atol=1e-3)
     assert torch.equal(fast.valid, slow.valid) and torch.equal(fast.disparity, slow.disparity)
-    plain = matchers.match("sgm", left, right, max_disp)
+    plain = matchers.match("sgm", left, right, max_disp, keep_volume=True)
     assert not torch.equal(plain.cost_volume, fast.cost_volume)  # the mixed-in volume was used
