@@ -248,34 +248,77 @@ def _i16_to_float(a, inv_scale, out):
                 oy[x, d] = np.float32(ay[x, d]) * inv_scale
 
 
-def fixed_point_scale(cost_hwd: np.ndarray, P1: float, p2: np.ndarray, paths: int,
-                      penalty_step: float | None) -> int | None:
-    """``s = 1 / penalty_step`` when the 16-bit kernel is exact for this uint8 cost and these penalties
-    (``s`` an integer power of two, penalties multiples of ``1 / s``, ``paths * s * (max C + max P2)`` within
-    int16), else None (the float32 kernel runs)."""
-    if penalty_step is None or cost_hwd.dtype != np.uint8 or cost_hwd.size == 0:
+def grid_scale(penalty_step: float | None) -> int | None:
+    """``s = 1 / penalty_step`` if it is an integer power of two (the grids fixed point can use), else None."""
+    if penalty_step is None:
         return None
     s = 1.0 / float(penalty_step)
     if s < 1 or s != round(s) or int(round(s)) & (int(round(s)) - 1):
         return None
-    s = int(round(s))
+    return int(round(s))
+
+
+def fits_int16(s: int, cost_max: float, P1: float, p2_max: float, paths: int) -> bool:
+    """Whether ``s * L`` (0 <= L <= max C + max P2) summed over ``paths`` fits int16, with the padding
+    sentinel above every ``s * L + s * P1``."""
+    l_max = s * (float(cost_max) + float(p2_max))
+    return paths * l_max <= _I16_MAX and l_max + s * float(P1) < int(_I16_SENTINEL)
+
+
+def fixed_point_scale(cost_hwd: np.ndarray, P1: float, p2: np.ndarray, paths: int,
+                      penalty_step: float | None, cost_max: int | None = None) -> int | None:
+    """``s = 1 / penalty_step`` when the 16-bit kernel is exact for this uint8 cost and these penalties
+    (``s`` an integer power of two, ``P1`` and ``p2`` multiples of ``1 / s``, :func:`fits_int16`; ``cost_max``
+    a known bound of the cost, else its maximum is taken), else None (the float32 kernel runs)."""
+    s = grid_scale(penalty_step)
+    if s is None or cost_hwd.dtype != np.uint8 or cost_hwd.size == 0:
+        return None
     p2s = p2.astype(np.float64) * s
     if not (np.array_equal(p2s, np.round(p2s)) and float(P1) * s == round(float(P1) * s)):
         return None
-    l_max = s * int(cost_hwd.max()) + (float(p2s.max()) if p2.size else 0.0)  # 0 <= s*L <= s*(C + P2)
-    if paths * l_max > _I16_MAX or l_max + s * float(P1) >= int(_I16_SENTINEL):
-        return None
-    return s
+    c_max = int(cost_hwd.max()) if cost_max is None else cost_max
+    return s if fits_int16(s, c_max, P1, float(p2.max()) if p2.size else 0.0, paths) else None
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def p2_maps_fixed(grey, P1, P2, alpha, dirs, s):
+    """``s *`` :func:`stereonet.aggregate.sgm.p2_maps_numpy` (penalty step ``1 / s``) as int16 (R, H, W), in
+    one parallel pass: the same float32 operations, ``max(P2 / (1 + alpha |dI|), P1)`` rounded half to even
+    to the grid (``P1``, ``P2`` float32, already on it); ``P2`` where there is no predecessor."""
+    R = dirs.shape[0]
+    H, W = grey.shape
+    out = np.empty((R, H, W), np.int16)
+    sf = np.float32(s)
+    p2c = np.int16(np.rint(P2 * sf))
+    one = np.float32(1.0)
+    for y in prange(H):
+        for r in range(R):
+            dx, dy = dirs[r, 0], dirs[r, 1]
+            yp = y - dy
+            o = out[r, y]
+            if alpha == 0 or not 0 <= yp < H:
+                o[:] = p2c
+                continue
+            for x in range(W):
+                xp = x - dx
+                if 0 <= xp < W:
+                    v = P2 / (one + alpha * abs(grey[y, x] - grey[yp, xp]))
+                    v = v if v > P1 else P1
+                    o[x] = np.int16(np.rint(v * sf))
+                else:
+                    o[x] = p2c
+    return out
 
 
 def sgm_fixed_hwd(cost_hwd: np.ndarray, P1: float, p2: np.ndarray, dirs: np.ndarray, s: int) -> np.ndarray:
     """``s * S`` as int16 (H, W, D) for a uint8 cost and penalties on the ``1 / s`` grid, where
     :func:`fixed_point_scale` returned ``s`` (exact: ``S`` = the float32 kernel's result times ``s``).
+    ``p2`` float (R, H, W) penalties, or int16 ones already times ``s`` (:func:`p2_maps_fixed`).
 
     The two sweeps run concurrently into two int16 buffers (added at the end) unless one thread or a volume
     above :data:`CONCURRENT_MAX_BYTES`; then one buffer."""
     P1s = np.int16(round(float(P1) * s))
-    p2s = np.round(p2.astype(np.float64) * s).astype(np.int16)
+    p2s = p2 if p2.dtype == np.int16 else np.round(p2.astype(np.float64) * s).astype(np.int16)
     down, up = sweep_groups(dirs)
     groups = [(np.ascontiguousarray(p2s[g]), np.ascontiguousarray(dirs[g]), flag)
               for g, flag in ((down, True), (up, False)) if g.size]

@@ -235,7 +235,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         directions = check_sgm_options(P1, P2, paths, p2_alpha)
         vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
         if extra is None and not keep_volume:
-            fixed = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step)
+            bits = census_window * census_window  # >= every census distance and the out-of-image fill
+            fixed = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step, cost_max=bits)
                      for i, v in enumerate(vols)]
             if all(f is not None for f in fixed) and len({f[1] for f in fixed}) == 1:
                 # 16-bit fixed point: select straight from the int16 aggregate (no float32 volume)

@@ -254,3 +254,16 @@ def test_sgm_with_a_mixed_in_volume_fast_path_equals_float_path():
     assert torch.equal(fast.valid, slow.valid) and torch.equal(fast.disparity, slow.disparity)
     plain = matchers.match("sgm", left, right, max_disp, keep_volume=True)
     assert not torch.equal(plain.cost_volume, fast.cost_volume)  # the mixed-in volume was used
+
+
+@pytest.mark.parametrize("alpha", [0.0, 20.0])
+def test_fixed_point_p2_maps_equal_numpy_maps_on_the_grid(alpha):
+    """The int16 P2 maps (one numba pass) are ``s`` times the numpy maps with the same penalty step."""
+    from stereonet.kernels.sgm import p2_maps_fixed
+
+    grey = np.random.default_rng(4).random((ROW_BLOCK + 3, 29), dtype=np.float32)
+    grey[3, :] = grey[4, :]  # zero gradients: P2 itself
+    ref = p2_maps_numpy(2.0, 48.0, DIRECTIONS_16, grey, alpha, 1 / 16)
+    got = p2_maps_fixed(grey, np.float32(2.0), np.float32(48.0), np.float32(alpha),
+                        np.asarray(DIRECTIONS_16, np.int64), 16)
+    assert got.dtype == np.int16 and np.array_equal(got.astype(np.float32) / np.float32(16), ref)
