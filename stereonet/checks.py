@@ -6,7 +6,9 @@ the argument, what was expected and what was received (shapes and dtypes, never 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import contextvars
+from collections.abc import Iterator, Sequence
 
 import torch
 
@@ -59,7 +61,26 @@ def check_shape(x: torch.Tensor, dims: Sequence[str], name: str) -> dict[str, in
     return bound
 
 
+# Tensors a caller has already checked (the matcher registry checks every pair once, then runs the matcher
+# inside :func:`inputs_checked`): check_finite, the one full pass over the data, skips these very objects,
+# so the algorithms keep calling the public, checking functions without a second pass over the images.
+_CHECKED: contextvars.ContextVar[tuple] = contextvars.ContextVar("stereonet_checked_inputs", default=())
+
+
+@contextlib.contextmanager
+def inputs_checked(*tensors: torch.Tensor) -> Iterator[None]:
+    """Within the block, :func:`check_finite` trusts these tensor objects (identity, not value: a new tensor
+    made from them is checked again). Only for tensors that went through the same checks just before."""
+    token = _CHECKED.set(_CHECKED.get() + tensors)
+    try:
+        yield
+    finally:
+        _CHECKED.reset(token)
+
+
 def check_finite(x: torch.Tensor, name: str) -> None:
+    if any(x is t for t in _CHECKED.get()):
+        return
     if x.is_floating_point() and not bool(torch.isfinite(x).all()):
         raise StereoInputError(f"{name}: expected finite values, got NaN or inf")
 

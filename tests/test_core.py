@@ -94,3 +94,34 @@ def test_atomic_write_respects_umask(tmp_path):
     finally:
         os.umask(old)
     assert (target.stat().st_mode & 0o777) == 0o644
+
+
+def test_matcher_inputs_are_checked_once(monkeypatch):
+    """The registry checks a pair once (one finiteness pass per image) and the stages below, which call the
+    public checking functions, trust those very tensors; a NaN still fails with one line, and a tensor made
+    inside the matcher (not the checked object) is checked again."""
+    import pytest
+
+    from stereonet import checks, matchers
+    from stereonet.checks import StereoInputError
+
+    calls = []
+    real = torch.isfinite
+    monkeypatch.setattr(checks.torch, "isfinite", lambda x: calls.append(tuple(x.shape)) or real(x))
+    left, right = torch.rand(1, 3, 20, 40), torch.rand(1, 3, 20, 40)
+    for name in ("sgm", "bm-sad"):
+        calls.clear()
+        for kw in ({}, {"backend": "torch"}, {"keep_volume": True}):
+            calls.clear()
+            matchers.match(name, left, right, 8, **kw)
+            assert calls.count((1, 3, 20, 40)) == 2, (name, kw, calls)  # left and right, once each
+    bad = left.clone()
+    bad[0, 0, 3, 3] = float("nan")
+    with pytest.raises(StereoInputError, match="left: expected finite"):
+        matchers.match("sgm", bad, right, 8)
+    with checks.inputs_checked(left):
+        checks.check_finite(left, "left")  # trusted: no pass
+        with pytest.raises(StereoInputError, match="copy"):
+            checks.check_finite(bad, "copy")
+    checks.check_finite(left, "left")
+    assert calls[-1] == (1, 3, 20, 40)  # outside the block it is checked again

@@ -4,7 +4,7 @@ import sys
 
 import data_gen
 from stereonet.aggregate.sgm import sgm_aggregate
-from stereonet.cost.volume import build_cost_volume_checked
+from stereonet.cost import build_cost_volume
 from stereonet.data import _SyntheticItems
 from stereonet.evaluation import format_table, run_evaluation
 from stereonet.matchers import local as rl
@@ -16,10 +16,10 @@ alphas = [float(x) for x in sys.argv[2].split(",")]
 specs = sys.argv[3].split(";") if len(sys.argv) > 3 else ["val2", "val4"]
 
 def fused(left, right, max_disp, a=0.5):
-    vol = build_cost_volume_checked(left, right, max_disp, cost="census", window=1, census_window=7)
+    vol = build_cost_volume(left, right, max_disp, cost="census", window=1, census_window=7)
     s = reg._siamese_cost(left, right, max_disp, ckpt).clamp(max=2.0)
     vol = (1 - a) * vol + a * 24.0 * s
-    agg = sgm_aggregate(vol, 2.0, 48.0, paths=8, image=left, p2_alpha=20.0, _guide_checked=True)
+    agg = sgm_aggregate(vol, 2.0, 48.0, paths=8, image=left, p2_alpha=20.0)
     return rl.select_and_filter(agg, subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3,
                                 speckle_size=100, speckle_diff=1.0, fill=False)
 

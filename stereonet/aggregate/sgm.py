@@ -165,12 +165,11 @@ def check_sgm_options(P1: float, P2: float, paths: int, p2_alpha: float,
     return directions
 
 
-def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide: bool = True, penalty_step=None):
+def _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, penalty_step=None):
     check_cost_volume(cost)
     directions = check_sgm_options(P1, P2, paths, p2_alpha, penalty_step)
     if image is not None:
-        if check_guide:
-            check_image(image, "image")
+        check_image(image, "image")
         b, _, h, w = cost.shape
         check_shape(image, [str(b), "C", str(h), str(w)], "image")
     return directions
@@ -192,8 +191,8 @@ def sgm_aggregate_torch(cost: torch.Tensor, P1: float, P2: float, paths: int = 8
 
 
 def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, image: torch.Tensor | None = None,
-                  p2_alpha: float = 0.0, backend: str = "auto", *, penalty_step: float | None = None,
-                  _guide_checked: bool = False) -> torch.Tensor:
+                  p2_alpha: float = 0.0, backend: str = "auto", *,
+                  penalty_step: float | None = None) -> torch.Tensor:
     """Semi-global aggregation of any cost volume (see module doc).
 
     Args:
@@ -205,14 +204,12 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
         p2_alpha: strength of the P2 adaptation (0 = constant P2).
         backend: ``"auto"`` (numba on CPU without gradient, else torch), ``"torch"`` or ``"numba"``.
         penalty_step: round ``P1`` and every ``P2(p, r)`` to multiples of this (see module doc); None = exact.
-        _guide_checked: internal; the caller has already validated ``image`` with ``check_image``.
 
     Returns:
         :math:`(B, D, H, W)` aggregated cost ``S = sum_r L_r`` (dtype of ``cost``; the numba backend
         computes in float32). The numba result is a permuted view of a ``(B, H, W, D)`` buffer.
     """
-    directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, check_guide=not _guide_checked,
-                                 penalty_step=penalty_step)
+    directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, penalty_step=penalty_step)
     if not use_numba(cost, backend=backend, float32_only=False):  # the kernel computes in float32
         return sgm_aggregate_torch(cost, P1, P2, paths, image, p2_alpha, penalty_step)
     b = cost.shape[0]

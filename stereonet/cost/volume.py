@@ -478,16 +478,6 @@ def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int,
     return sweep_cost_volume(left, right, max_disp, pixel, aggregate, memory_budget=memory_budget // 3)
 
 
-def build_cost_volume_checked(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = "sad",
-                              window: int = 5, **options) -> torch.Tensor:
-    """:func:`build_cost_volume` for a pair already validated by ``check_stereo_inputs`` (e.g. by the
-    matcher registry): the numba path skips the second check of the images (a full pass over both)."""
-    if use_numba(left, right, backend=options.get("backend", "auto")):
-        opts = {k: v for k, v in options.items() if k not in ("backend", "memory_budget")}
-        return numba_cost_volume(left, right, max_disp, cost, 1 if cost == "ad" else check_window(window), **opts)
-    return build_cost_volume(left, right, max_disp, cost, window, **options)
-
-
 def build_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = "sad",
                       window: int = 5, **options) -> torch.Tensor:
     """Cost volume of ``cost`` (one of :data:`COSTS` or ``"adaptive"``), see the module doc.

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from stereonet.checks import StereoInputError, check_stereo_inputs
+from stereonet.checks import StereoInputError, check_stereo_inputs, inputs_checked
 from stereonet.types import StereoOutput
 
 MatcherFn = Callable[..., StereoOutput]
@@ -86,7 +86,8 @@ def get_matcher(name: str, **options) -> MatcherFn:
     @functools.wraps(s.fn)
     def run(left: torch.Tensor, right: torch.Tensor, max_disp: int, **more) -> StereoOutput:
         left, right, max_disp = check_stereo_inputs(left, right, max_disp)
-        return s.fn(left, right, max_disp, **{**options, **more})
+        with inputs_checked(left, right):  # checked once: the stages below skip the second pass over them
+            return s.fn(left, right, max_disp, **{**options, **more})
 
     return run
 

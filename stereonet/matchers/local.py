@@ -8,7 +8,7 @@ left invalid (``fill=False``; eval.py has ``--fill``). ``sgm`` adds semi-global 
 
 Speed: on the CPU (float32, no gradient) ``bm-*`` never builds the volume: one fused numba pass per image
 slides the window sums along the rows and selects on each finished cost row
-(:func:`~stereonet.select.wta.block_select_checked`, tested equal to the volume path), so the output has
+(:func:`~stereonet.select.wta.block_select_disparity`, tested equal to the volume path), so the output has
 ``cost_volume=None`` unless ``keep_volume=True``. Inputs are checked once, by the matcher registry.
 ``sgm`` on the CPU (float32, no gradient, pixelwise census) computes the census volume as uint8
 (:func:`~stereonet.cost.volume.census_pixel_volumes_u8`) straight into the numba aggregation in 16-bit fixed
@@ -42,7 +42,6 @@ from stereonet.checks import StereoInputError, check_window
 from stereonet.cost import build_cost_volume
 from stereonet.cost.volume import (
     CENSUS_U8_MAX_WINDOW,
-    build_cost_volume_checked,
     census_pixel_volumes_u8,
 )
 from stereonet.kernels import use_numba
@@ -50,7 +49,7 @@ from stereonet.matchers import register
 from stereonet.select.fill import fill_occlusions
 from stereonet.select.filters import median_filter, speckle_filter
 from stereonet.select.wta import (
-    block_select_checked,
+    block_select_disparity,
     select_disparity,
     select_disparity_confidence,
     select_disparity_confidence_fixed,
@@ -145,15 +144,15 @@ def block_matching(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost:
 
     Inputs must be checked already (the matcher registry does), and ``options`` must hold every back-end
     option (the registered ``bm-*`` merge :data:`BM_DEFAULTS` first). For float32 CPU input without gradient
-    and ``keep_volume=False`` the volume is never built: :func:`~stereonet.select.wta.block_select_checked`
+    and ``keep_volume=False`` the volume is never built: :func:`~stereonet.select.wta.block_select_disparity`
     fuses cost, window sums and selection in one numba pass (same disparities as the volume path) and
     the output has ``cost_volume=None``; ``keep_volume=True`` (or a torch backend) builds the volume and
     returns it as ``cost_volume``.
     """
     cost_opts, back = _split(options, {})  # the registered bm-* merged BM_DEFAULTS already
     if not keep_volume and use_numba(left, right, backend=cost_opts.get("backend", "auto")):
-        selection = block_select_checked(left, right, max_disp, cost, check_window(window), back.pop("subpixel"),
-                                         back.pop("uniqueness"), back.pop("lr_tol"), **cost_opts)
+        selection = block_select_disparity(left, right, max_disp, cost, window, back.pop("subpixel"),
+                                           back.pop("uniqueness"), back.pop("lr_tol"), **cost_opts)
         return _filter(selection, None, **back)
     vol = build_cost_volume(left, right, max_disp, cost=cost, window=window, **cost_opts)
     return select_and_filter(vol, **back)
@@ -254,12 +253,11 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step).to(left.device)
         del vols
     else:
-        vol = build_cost_volume_checked(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
+        vol = build_cost_volume(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
         if extra is not None:  # (w_own, w_extra, volume): a learned cost mixed in (siamese-census-sgm)
             w_own, w_extra, other = extra
             vol = w_own * vol + w_extra * other.to(vol)
-        agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, penalty_step=step,
-                            _guide_checked=True)
+        agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, penalty_step=step)
         del vol
     # selection and the cost margin of the aggregated cost in one pass over it (select_and_filter +
     # cost_margin_confidence, the same numbers); confidence 0 where LR / uniqueness / speckles rejected

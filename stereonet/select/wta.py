@@ -187,17 +187,11 @@ def block_select_disparity(left: torch.Tensor, right: torch.Tensor, max_disp: in
     """
     from stereonet.checks import check_stereo_inputs, check_window
 
-    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
-    return block_select_checked(left, right, max_disp, cost, check_window(window), subpixel, uniqueness, lr_tol,
-                                **cost_options)
-
-
-def block_select_checked(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
-                         subpixel: str | None, uniqueness: float, lr_tol: float | None, **cost_options) -> tuple:
-    """:func:`block_select_disparity` for inputs already validated (the matcher registry checked them)."""
     from stereonet.cost.volume import numba_engine_args, out_of_image_cost, run_block_engine
     from stereonet.kernels.block import MODE_SELECT, finish_border_selection
 
+    left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    window = check_window(window)
     method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
     for key in ("backend", "memory_budget"):
         cost_options.pop(key, None)
