@@ -186,7 +186,6 @@ def block_select_disparity(left: torch.Tensor, right: torch.Tensor, max_disp: in
         :math:`(B, 1, H, W)` on the device and in the dtype of ``left``.
     """
     from stereonet.checks import check_stereo_inputs, check_window
-
     from stereonet.cost.volume import numba_engine_args, out_of_image_cost, run_block_engine
     from stereonet.kernels.block import MODE_SELECT, finish_border_selection
 
