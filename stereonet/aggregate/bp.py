@@ -30,7 +30,7 @@ from stereonet.aggregate.mrf import (
     grid_energy,
     truncated_linear_min_convolution,
 )
-from stereonet.checks import StereoInputError, check_cost_volume
+from stereonet.checks import StereoInputError, check_cost_volume, check_finite
 from stereonet.kernels import use_numba
 
 
@@ -123,8 +123,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
         :class:`BPResult`. Not differentiable (``argmin``); the inputs are detached.
     """
     cost = check_cost_volume(cost, "cost")
-    if not bool(torch.isfinite(cost).all()):
-        raise StereoInputError("cost: expected finite costs, got NaN or inf")
+    check_finite(cost, "cost")  # (skipped for a volume the caller built from checked images: inputs_checked)
     smoothness, truncation = check_smoothness(smoothness, truncation)
     for name, v in (("iterations", iterations), ("levels", levels)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import torch
 
 from stereonet.aggregate.mrf import check_edge_weights, check_smoothness
-from stereonet.checks import StereoInputError, check_cost_volume
+from stereonet.checks import StereoInputError, check_cost_volume, check_finite
 from stereonet.kernels import use_numba
 from stereonet.select.fill import scanline_fill
 
@@ -64,9 +64,14 @@ def _rows(cost: torch.Tensor) -> torch.Tensor:
 
 def _check_cost(cost: torch.Tensor) -> torch.Tensor:
     cost = check_cost_volume(cost, "cost")
-    if not bool(torch.isfinite(cost).all()):
-        raise StereoInputError("cost: expected finite costs, got NaN or inf")
+    check_finite(cost, "cost")  # (skipped for a volume the caller built from checked images: inputs_checked)
     return cost
+
+
+def _volume_numpy(cost: torch.Tensor):
+    """The (B, D, H, W) volume as a numpy view for the kernels (no copy for a CPU float32/64 tensor)."""
+    c = cost.detach().cpu()
+    return (c if c.dtype in (torch.float32, torch.float64) else c.double()).numpy()
 
 
 def scanline_dp(cost: torch.Tensor, occlusion_cost: float, backend: str = "auto") -> ScanlineDPResult:
@@ -89,14 +94,13 @@ def scanline_dp(cost: torch.Tensor, occlusion_cost: float, backend: str = "auto"
             or not math.isfinite(occlusion_cost) or occlusion_cost <= 0:
         raise StereoInputError(f"occlusion_cost: expected a finite number > 0, got {occlusion_cost!r}")
     b, _, h, w = cost.shape
-    rows = _rows(cost.detach())
     if _resolve_backend(backend, cost) == "numba":
         from stereonet.kernels.dp import scanline_dp_three_case
 
-        disp, occ, energy = scanline_dp_three_case(rows.cpu().double().contiguous().numpy(), float(occlusion_cost))
+        disp, occ, energy = scanline_dp_three_case(_volume_numpy(cost), float(occlusion_cost))
         disp, occ, energy = torch.from_numpy(disp), torch.from_numpy(occ), torch.from_numpy(energy)
     else:
-        disp, occ, energy = _scanline_dp_reference(rows.double(), float(occlusion_cost))
+        disp, occ, energy = _scanline_dp_reference(_rows(cost.detach()).double(), float(occlusion_cost))
     disparity = disp.view(b, h, 1, w).permute(0, 2, 1, 3).to(device=cost.device, dtype=cost.dtype)
     occlusion = occ.view(b, h, 1, w).permute(0, 2, 1, 3).to(cost.device)
     return ScanlineDPResult(disparity.contiguous(), occlusion.contiguous(), energy.view(b, h).to(cost.device))
@@ -206,17 +210,17 @@ def energy_dp(cost: torch.Tensor, smoothness: float, truncation: float = math.in
         smoothness, truncation = check_smoothness(smoothness, truncation)
     weights = check_edge_weights(weights, cost, "weights")
     b, d, h, w = cost.shape
-    rows = _rows(cost.detach()).double()
     wrows = (torch.ones(b * h, w, dtype=torch.float64) if weights is None
              else weights.detach().reshape(b * h, w).double().cpu())
     truncation = min(float(truncation), float(d))  # |d - d'| < D, so larger truncations change nothing
     if _resolve_backend(backend, cost) == "numba":
         from stereonet.kernels.dp import scanline_viterbi
 
-        disp, energy = scanline_viterbi(rows.cpu().contiguous().numpy(), wrows.contiguous().numpy(),
-                                        float(smoothness), truncation)
+        disp, energy = scanline_viterbi(_volume_numpy(cost), wrows.contiguous().numpy(), float(smoothness),
+                                        truncation)
         disp, energy = torch.from_numpy(disp), torch.from_numpy(energy)
     else:
+        rows = _rows(cost.detach()).double()
         disp, energy = _viterbi_reference(rows, wrows.to(rows.device), smoothness, truncation)
     disparity = disp.view(b, h, 1, w).permute(0, 2, 1, 3).to(device=cost.device, dtype=cost.dtype)
     return EnergyDPResult(disparity.contiguous(), energy.view(b, h).to(cost.device))

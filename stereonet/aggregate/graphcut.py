@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from stereonet.aggregate.mrf import check_edge_weights, check_smoothness, grid_energy
-from stereonet.checks import StereoInputError, check_cost_volume, check_shape
+from stereonet.checks import StereoInputError, check_cost_volume, check_finite, check_shape
 
 _RIGHT = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0]])
 _DOWN = np.array([[0, 0, 0], [0, 0, 0], [0, 1, 0]])
@@ -97,8 +97,7 @@ def alpha_expansion(cost: torch.Tensor, smoothness: float, truncation: float = 2
         :class:`GraphCutResult`. Not differentiable; inputs are detached.
     """
     cost = check_cost_volume(cost, "cost")
-    if not bool(torch.isfinite(cost).all()):
-        raise StereoInputError("cost: expected finite costs, got NaN or inf")
+    check_finite(cost, "cost")  # (skipped for a volume the caller built from checked images: inputs_checked)
     smoothness, truncation = check_smoothness(smoothness, truncation)
     if isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 1:
         raise StereoInputError(f"cycles: expected an integer >= 1, got {cycles!r}")

@@ -1,8 +1,9 @@
 """Compiled CPU kernels (numba, parallel over scanlines) for :mod:`stereonet.aggregate.dp`.
 
-Both kernels take a scanline-major cost array ``cost[R, D, W]`` (R = B·H scanlines) and mirror the plain
-torch references in ``dp.py`` step for step (same recurrences, same tie-breaking), so the two agree exactly
-on costs that are exactly representable.
+Both kernels read the cost volume ``cost[B, D, H, W]`` in place (any float dtype, no copy: scanline
+``r = b·H + h`` is the strided view ``cost[b, :, h, :]``; float32 costs are widened to float64 exactly as
+they are added) and mirror the plain torch references in ``dp.py`` step for step (same recurrences, same
+tie-breaking, float64 sums), so the two agree exactly on costs that are exactly representable.
 """
 
 from __future__ import annotations
@@ -25,12 +26,14 @@ def scanline_dp_three_case(cost, occlusion_cost):  # pragma: no cover - compiled
     Returns ``disp (R, W) int32`` (occluded pixels filled from the nearest matched pixel on their left,
     else on their right), ``occluded (R, W) bool`` and ``energy (R,) float64``.
     """
-    R, D, W = cost.shape
+    B, D, H, W = cost.shape
+    R = B * H
     disp = np.zeros((R, W), dtype=np.int32)
     occluded = np.zeros((R, W), dtype=np.bool_)
     energy = np.zeros(R, dtype=np.float64)
     inf = np.inf
     for r in prange(R):
+        c = cost[r // H, :, r % H, :]  # (D, W) view of scanline r
         table = np.full((W + 1, D), inf)
         back = np.zeros((W + 1, D), dtype=np.int8)
         table[0, 0] = 0.0
@@ -40,7 +43,7 @@ def scanline_dp_three_case(cost, occlusion_cost):  # pragma: no cover - compiled
                 best = inf
                 arg = MATCH
                 if d <= i - 1:
-                    v = table[i - 1, d] + cost[r, d, i - 1]
+                    v = table[i - 1, d] + np.float64(c[d, i - 1])
                     if v < best:
                         best = v
                         arg = MATCH
@@ -98,22 +101,25 @@ def _fill_row(disp, occluded):  # pragma: no cover - compiled
 
 @njit(parallel=True, cache=True, fastmath=False)
 def scanline_viterbi(cost, weights, smoothness, truncation):  # pragma: no cover - compiled
-    """Per-scanline energy DP: ``sum_x cost[d_x, x] + smoothness·weights[x]·min(|d_x - d_{x+1}|, T)``.
+    """Per-scanline energy DP: ``sum_x cost[d_x, x] + smoothness·weights[x]·min(|d_x - d_{x+1}|, T)`` of each
+    scanline ``r = b·H + h`` of ``cost (B, D, H, W)``.
 
     The min over the previous disparity uses the O(D) two-pass distance transform with argmin tracking.
     ``weights (R, W)`` holds the weight of edge ``(x, x+1)`` at ``x``. Returns ``disp (R, W) int32`` and
     ``energy (R,) float64``.
     """
-    R, D, W = cost.shape
+    B, D, H, W = cost.shape
+    R = B * H
     disp = np.zeros((R, W), dtype=np.int32)
     energy = np.zeros(R, dtype=np.float64)
     for r in prange(R):
+        c = cost[r // H, :, r % H, :]  # (D, W) view of scanline r
         acc = np.empty(D)
         f = np.empty(D)
         arg = np.empty(D, dtype=np.int32)
         back = np.zeros((W, D), dtype=np.int32)
         for d in range(D):
-            acc[d] = cost[r, d, 0]
+            acc[d] = np.float64(c[d, 0])
         for x in range(1, W):
             s = smoothness * weights[r, x - 1]
             best = 0
@@ -135,7 +141,7 @@ def scanline_viterbi(cost, weights, smoothness, truncation):  # pragma: no cover
                 if cap < f[d]:
                     f[d] = cap
                     arg[d] = best
-                acc[d] = f[d] + cost[r, d, x]
+                acc[d] = f[d] + np.float64(c[d, x])
                 back[x, d] = arg[d]
         d = 0
         for k in range(1, D):

@@ -30,7 +30,7 @@ from stereonet.aggregate.bp import belief_propagation
 from stereonet.aggregate.dp import energy_dp, scanline_dp
 from stereonet.aggregate.graphcut import alpha_expansion
 from stereonet.aggregate.mrf import contrast_edge_weights, left_occlusions_from_disparity
-from stereonet.checks import StereoInputError, check_stereo_inputs
+from stereonet.checks import StereoInputError, check_stereo_inputs, inputs_checked
 from stereonet.matchers import register
 from stereonet.select.fill import scanline_fill
 from stereonet.types import StereoOutput
@@ -83,6 +83,11 @@ def dp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
         raise StereoInputError(f"mode: expected 'occlusion' or 'energy', got {mode!r}")
     left, right, max_disp = check_stereo_inputs(left, right, max_disp)
     volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
+    with inputs_checked(volume):
+        return _dp(left, volume, mode, occlusion_cost, smoothness, truncation, subpixel)
+
+
+def _dp(left, volume, mode, occlusion_cost, smoothness, truncation, subpixel) -> StereoOutput:
     extras: dict[str, torch.Tensor] = {}
     if mode == "occlusion":
         res = scanline_dp(volume, occlusion_cost)
@@ -124,7 +129,8 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
     """
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
                                   contrast_factor)
-    res = belief_propagation(volume, smoothness, truncation, iterations, levels, wr, wd)
+    with inputs_checked(volume):  # built here from checked images: no second pass over it
+        res = belief_propagation(volume, smoothness, truncation, iterations, levels, wr, wd)
     disp, valid, occlusion = _occlusion_filled(res.beliefs, res.disparity, subpixel)
     return StereoOutput(disp, valid, cost_volume=volume,
                         extras={"beliefs": res.beliefs, "energy": res.energy, "occlusion": occlusion})
@@ -143,6 +149,7 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
     """
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
                                   contrast_factor)
-    res = alpha_expansion(volume, smoothness, truncation, cycles, None, wr, wd)
+    with inputs_checked(volume):  # built here from checked images: no second pass over it
+        res = alpha_expansion(volume, smoothness, truncation, cycles, None, wr, wd)
     disp, valid, occlusion = _occlusion_filled(volume, res.disparity, subpixel)
     return StereoOutput(disp, valid, cost_volume=volume, extras={"energy": res.energy, "occlusion": occlusion})
