@@ -6,6 +6,9 @@ Selection rule, fixed before the jitter run finished: between runs, the weights 
 leaves such errors; the clean set is reported beside it.
 
     python docs/experiments/val_jitter_compare.py stereonet/weights/siamese.pt [OTHER.pt ...]
+
+A third column, ``warped``, adds offsets that vary across the image (``val_vertical_warp`` 0.5 rows at the
+borders beside the 1-row offset): the selection set of the vertical-warp ablation (seventh/eighth session).
 """
 import sys
 
@@ -17,9 +20,9 @@ from stereonet.training.data import SyntheticStereoDataModule, collate_pairs
 from stereonet.training.losses import disparity_errors
 
 
-def val_epe(net, jitter: float, batch_size: int = 4) -> float:
+def val_epe(net, jitter: float, batch_size: int = 4, warp: float = 0.0) -> float:
     dm = SyntheticStereoDataModule(source="data_gen", height=96, width=192, val_pairs=12, supersample=1,
-                                   val_seed=900000, val_vertical_jitter=jitter)
+                                   val_seed=900000, val_vertical_jitter=jitter, val_vertical_warp=warp)
     dm.setup("fit")
     total, count = 0.0, 0
     for i in range(0, len(dm.val_items), batch_size):
@@ -36,4 +39,5 @@ def val_epe(net, jitter: float, batch_size: int = 4) -> float:
 for path in sys.argv[1:]:
     net, _ = load_weights(path)
     net.eval()
-    print(f"{path}: val WTA EPE clean {val_epe(net, 0.0):.3f}  jittered {val_epe(net, 1.0):.3f}", flush=True)
+    print(f"{path}: val WTA EPE clean {val_epe(net, 0.0):.3f}  jittered {val_epe(net, 1.0):.3f}  "
+          f"warped {val_epe(net, 1.0, warp=0.5):.3f}", flush=True)

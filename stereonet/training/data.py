@@ -118,21 +118,33 @@ def photometric_augment(item: dict, generator: torch.Generator) -> dict:
     return item
 
 
-def vertical_jitter(item: dict, max_offset: float, generator: torch.Generator) -> dict:
+def vertical_jitter(item: dict, max_offset: float, generator: torch.Generator, warp: float = 0.0) -> dict:
     """Resample the right view ``dy`` rows down, ``dy`` uniform in [-max_offset, max_offset] (bilinear,
     border rows repeated): a small rectification error as real rigs have (HITNet and CREStereo train with
     it), so a matcher cannot rely on rows matching to a fraction of a pixel. Ground truth is unchanged
-    (disparity is the horizontal offset)."""
-    if max_offset <= 0:
+    (disparity is the horizontal offset).
+
+    ``warp`` > 0 makes the offset vary across the image as a slightly wrong calibration does:
+    ``dy(x, y) = a + b u + c v`` with ``u, v`` in [-1, 1] from the left/top to the right/bottom border and
+    ``b, c`` uniform in [-warp, warp] rows (a small roll and a vertical scale difference between the views);
+    the resampling stays vertical, so the ground truth stays exact. ``warp = 0`` draws nothing more (the
+    same stream as before the option existed)."""
+    if max_offset <= 0 and warp <= 0:
         return item
     import torch.nn.functional as F
 
     dy = (2.0 * float(torch.rand(1, generator=generator)) - 1.0) * max_offset
     img = item["right"]  # CxHxW
     c, h, w = img.shape
-    ys = torch.arange(h, dtype=img.dtype) + dy
+    ys = torch.arange(h, dtype=img.dtype)[:, None] + dy
     xs = torch.arange(w, dtype=img.dtype)
-    grid = torch.stack(torch.meshgrid(2 * xs / max(w - 1, 1) - 1, 2 * ys / max(h - 1, 1) - 1, indexing="xy"), -1)
+    if warp > 0:
+        b, cc = ((2.0 * torch.rand(2, generator=generator) - 1.0) * warp).tolist()
+        u = 2 * xs / max(w - 1, 1) - 1
+        v = 2 * torch.arange(h, dtype=img.dtype) / max(h - 1, 1) - 1
+        ys = ys + b * u[None, :] + cc * v[:, None]
+    ys = ys.expand(h, w)
+    grid = torch.stack([(2 * xs / max(w - 1, 1) - 1).expand(h, w), 2 * ys / max(h - 1, 1) - 1], -1)
     out = dict(item)
     out["right"] = F.grid_sample(img[None], grid[None], mode="bilinear", padding_mode="border",
                                  align_corners=True)[0]
@@ -229,10 +241,10 @@ class PooledCurriculumStream(IterableDataset):
     def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
                  augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None,
                  rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0,
-                 extra: Dataset | None = None, extra_ratio: float = 0.0) -> None:
+                 extra: Dataset | None = None, extra_ratio: float = 0.0, vertical_warp: float = 0.0) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
         self.extra, self.extra_ratio = extra, float(extra_ratio) if extra is not None else 0.0
-        self.vertical_jitter = float(vertical_jitter)
+        self.vertical_jitter, self.vertical_warp = float(vertical_jitter), float(vertical_warp)
         self.supersample, self.disparity_range = supersample, disparity_range
         self.pool_size, self.reuse, self.augment = max(1, pool_size), max(1, reuse), augment
         self.difficulty, self.start = difficulty, start  # multiprocessing Values shared with workers
@@ -268,8 +280,8 @@ class PooledCurriculumStream(IterableDataset):
                 if float(torch.rand(1, generator=g)) < 0.5:
                     item = swap_flip(item)
                 item = photometric_augment(item, g)
-                if self.vertical_jitter > 0:
-                    item = vertical_jitter(item, self.vertical_jitter, g)
+                if self.vertical_jitter > 0 or self.vertical_warp > 0:
+                    item = vertical_jitter(item, self.vertical_jitter, g, self.vertical_warp)
             yield _training_fields(item)
 
 
@@ -327,6 +339,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         val_vertical_jitter: the right view of validation pair ``i`` is shifted by a fixed offset drawn
             uniformly in [-v, v] rows (seeded by ``val_seed``; the same for every run), so that selection
             sees the small rectification errors every real rig has (0 = off, the default).
+        vertical_warp, val_vertical_warp: the offsets also vary across the image, up to this many rows at
+            the borders (a small roll and vertical scale error; :func:`vertical_jitter`'s ``warp``; 0 = off).
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
@@ -335,7 +349,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  curriculum_fraction: float = 0.5, min_difficulty: int = 0, num_workers: int = 0,
                  augment: bool = True, supersample: int = 2, disparity_range: int | None = None,
                  vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0, train: str | None = None,
-                 train_ratio: float = 0.5) -> None:
+                 train_ratio: float = 0.5, vertical_warp: float = 0.0, val_vertical_warp: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters()
         from stereonet.checks import StereoInputError
@@ -360,9 +374,10 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                 level = round(top * i / max(hp.val_pairs - 1, 1))
                 ds = _make_dataset(hp.source, hp.val_pairs, hp.val_seed, level, vh, vw, hp.supersample)
                 item = _training_fields(ds[i])
-                if hp.val_vertical_jitter > 0:
+                if hp.val_vertical_jitter > 0 or hp.val_vertical_warp > 0:
                     item = vertical_jitter(item, hp.val_vertical_jitter,
-                                           torch.Generator().manual_seed(hp.val_seed * 7919 + i))
+                                           torch.Generator().manual_seed(hp.val_seed * 7919 + i),
+                                           hp.val_vertical_warp)
                 self.val_items.append(item)
 
     def set_progress(self, progress: float, start_step: int | None = None) -> None:
@@ -386,7 +401,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                         hp.augment, self._difficulty, self._start, hp.supersample,
                                         hp.disparity_range, rank=rank, world_size=world,
                                         vertical_jitter=hp.vertical_jitter, extra=self.train_extra,
-                                        extra_ratio=hp.train_ratio)
+                                        extra_ratio=hp.train_ratio, vertical_warp=hp.vertical_warp)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

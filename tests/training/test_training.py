@@ -301,6 +301,30 @@ def test_vertical_jitter_shifts_the_right_view_by_a_fraction_of_a_row():
     assert vertical_jitter(item, 0.0, torch.Generator()) is item
 
 
+def test_vertical_warp_varies_the_offset_across_the_image_and_keeps_ground_truth():
+    """``warp``: dy = a + b u + c v (u, v in [-1, 1]); on a vertical ramp the interior rows differ from the
+    input by exactly that plane; warp 0 consumes no extra random numbers (the stream is unchanged)."""
+    from stereonet.training.data import vertical_jitter
+
+    h, w = 24, 20
+    ramp = torch.arange(h, dtype=torch.float32).view(1, h, 1).expand(3, h, w).clone()
+    item = {"left": ramp.clone(), "right": ramp.clone(), "disparity": torch.ones(1, h, w)}
+    g = torch.Generator().manual_seed(3)
+    out = vertical_jitter(item, 1.0, g, warp=0.8)
+    diff = out["right"][0, 3:-3]  # interior rows: the plane dy(x, y)
+    diff = diff - ramp[0, 3:-3]
+    u = 2 * torch.arange(w) / (w - 1) - 1
+    v = 2 * torch.arange(3, h - 3) / (h - 1) - 1
+    A = torch.stack([torch.ones(w * (h - 6)), u.repeat(h - 6), v.repeat_interleave(w)], 1)
+    coef = torch.linalg.lstsq(A.double(), diff.reshape(-1, 1).double()).solution.view(-1)
+    assert float((A.double() @ coef - diff.reshape(-1).double()).abs().max()) < 1e-4  # exactly a plane
+    assert abs(float(coef[0])) <= 1.0 and 0 < abs(float(coef[1])) <= 0.8 and 0 < abs(float(coef[2])) <= 0.8
+    torch.testing.assert_close(out["disparity"], item["disparity"])
+    plain_a = vertical_jitter(item, 1.0, torch.Generator().manual_seed(5))
+    plain_b = vertical_jitter(item, 1.0, torch.Generator().manual_seed(5), warp=0.0)
+    torch.testing.assert_close(plain_a["right"], plain_b["right"])
+
+
 def test_validation_jitter_is_fixed_per_pair_and_leaves_ground_truth_alone():
     from stereonet.training.data import SyntheticStereoDataModule
 
