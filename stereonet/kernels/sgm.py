@@ -13,7 +13,9 @@ Fixed point (:func:`_sweep_i16`): for uint8 costs with penalties on a grid ``1 /
 :func:`stereonet.aggregate.sgm.quantize_penalty`) every path cost is an integer multiple of ``1 / s``; the
 kernel computes ``s * L`` in int16 (16 SIMD lanes instead of 8, half the memory traffic), which is exact as
 long as ``paths * s * (max C + max P2)`` fits int16 (checked; otherwise the float32 kernel runs). The float32
-sums of such multiples are exact too, so both kernels give the same bits.
+sums of such multiples are exact too, so both kernels give the same bits. Its two sweeps share one int16
+buffer even when they run concurrently (rows handed over in the middle: :func:`sgm_fixed_hwd`), so at any
+size the memory is the uint8 cost plus one int16 volume, on two threads.
 """
 
 from __future__ import annotations
@@ -183,23 +185,29 @@ def _min16(a, b):
     return a if a < b else b
 
 
+def sweep_state_i16(G: int, W: int, D: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ring of padded path-cost rows ``L`` and their minima ``M`` that :func:`_sweep_i16` carries from
+    one chunk of rows to the next (``L`` starts at the sentinel)."""
+    return np.full((G * 3 * W, D + 2), _I16_SENTINEL, np.int16), np.empty(G * 3 * W, np.int16)
+
+
 @numba.njit(fastmath=False, nogil=True, cache=True)
-def _sweep_i16(C, S, scale, P1, p2, dirs, downward, fresh):
-    """:func:`_sweep` in 16-bit fixed point: ``C`` uint8 (H, W, D), ``S`` int16 (H, W, D) receives
-    ``s * sum L`` (``fresh``: assigned by the first direction), ``scale`` = s, ``P1`` = s * P1 and ``p2``
-    (G, H, W) = s * P2 maps, all int16. Every value stays below :data:`_I16_SENTINEL` (the caller checks the
-    bound), so no operation wraps."""
+def _sweep_i16(C, S, scale, P1, p2, dirs, downward, assign, L, M, step0, step1):
+    """Steps ``step0 .. step1 - 1`` of :func:`_sweep` in 16-bit fixed point (step = row index top-down, or
+    ``H - 1 - row`` bottom-up): ``C`` uint8 (H, W, D), ``S`` int16 (H, W, D) receives ``s * sum L`` of these
+    rows (``assign``: written by the first direction instead of added), ``scale`` = s, ``P1`` = s * P1 and
+    ``p2`` (G, H, W) = s * P2 maps, all int16; ``L``, ``M`` the state of :func:`sweep_state_i16`, carried
+    between calls. Every value stays below :data:`_I16_SENTINEL` (the caller checks the bound), so no
+    operation wraps."""
     H, W, D = C.shape
     G = dirs.shape[0]
-    L = np.full((G * 3 * W, D + 2), _I16_SENTINEL, np.int16)
-    M = np.empty(G * 3 * W, np.int16)
     C2 = C.reshape(H * W, D)
     S2 = S.reshape(H * W, D)
     cs = np.empty(D, np.int16)
     out_base = np.empty(G, np.int64)
     prev_base = np.empty(G, np.int64)
     row_ok = np.empty(G, np.bool_)
-    for step in range(H):
+    for step in range(step0, step1):
         y = step if downward else H - 1 - step
         _row_bases(y, H, W, dirs, row_ok, out_base, prev_base)
         for k in range(W):
@@ -229,7 +237,7 @@ def _sweep_i16(C, S, scale, P1, p2, dirs, downward, fresh):
                         out[d + 1] = cs[d]
                         mi = _min16(mi, cs[d])
                 M[o] = mi
-                if fresh and g == 0:
+                if assign and g == 0:
                     for d in range(D):
                         s_row[d] = out[d + 1]
                 else:
@@ -315,24 +323,77 @@ def sgm_fixed_hwd(cost_hwd: np.ndarray, P1: float, p2: np.ndarray, dirs: np.ndar
     :func:`fixed_point_scale` returned ``s`` (exact: ``S`` = the float32 kernel's result times ``s``).
     ``p2`` float (R, H, W) penalties, or int16 ones already times ``s`` (:func:`p2_maps_fixed`).
 
-    The two sweeps run concurrently into two int16 buffers (added at the end) unless one thread or a volume
-    above :data:`CONCURRENT_MAX_BYTES`; then one buffer."""
+    The two sweeps share one int16 buffer and run concurrently on two threads (numba releases the GIL):
+    the top-down sweep writes the upper half of the rows first and the bottom-up sweep the lower half, and
+    each adds its share to a row of the other half only after the other sweep has finished that row (rows
+    are handed over in chunks of :data:`SWEEP_CHUNK`, so the threads meet once, in the middle). Memory: the
+    cost and one int16 volume whatever the size; one thread runs the sweeps one after the other."""
     P1s = np.int16(round(float(P1) * s))
     p2s = p2 if p2.dtype == np.int16 else np.round(p2.astype(np.float64) * s).astype(np.int16)
+    H, W, D = cost_hwd.shape
     down, up = sweep_groups(dirs)
     groups = [(np.ascontiguousarray(p2s[g]), np.ascontiguousarray(dirs[g]), flag)
               for g, flag in ((down, True), (up, False)) if g.size]
-    if len(groups) == 1 or numba.get_num_threads() == 1 or 2 * cost_hwd.size > CONCURRENT_MAX_BYTES:
-        acc = np.empty(cost_hwd.shape, np.int16)
+    acc = np.empty(cost_hwd.shape, np.int16)
+    if len(groups) == 1 or numba.get_num_threads() == 1 or H < 2:
         for i, (p2g, dg, flag) in enumerate(groups):
-            _sweep_i16(cost_hwd, acc, np.int16(s), P1s, p2g, dg, flag, i == 0)
+            L, M = sweep_state_i16(dg.shape[0], W, D)
+            _sweep_i16(cost_hwd, acc, np.int16(s), P1s, p2g, dg, flag, i == 0, L, M, 0, H)
         return acc
-    buffers = [np.empty(cost_hwd.shape, np.int16) for _ in groups]
-    with ThreadPoolExecutor(max_workers=len(groups)) as pool:
-        list(pool.map(lambda job: _sweep_i16(cost_hwd, job[0], np.int16(s), P1s, *job[1], True),
-                      zip(buffers, groups)))
-    _add_into(buffers[0], buffers[1])  # exact: the total fits int16 (fixed_point_scale)
-    return buffers[0]
+    _shared_sweeps(cost_hwd, acc, np.int16(s), P1s, groups)
+    return acc
+
+
+SWEEP_CHUNK = 16  # rows per hand-over between the two concurrent sweeps
+
+
+def _shared_sweeps(C: np.ndarray, acc: np.ndarray, s: np.int16, P1s: np.int16, groups: list) -> None:
+    """Run the top-down and bottom-up sweep concurrently into one buffer (see :func:`sgm_fixed_hwd`).
+
+    Rows ``y < half`` (``half = (H + 1) // 2``) belong to the top-down sweep first, the others to the
+    bottom-up one: a sweep assigns the rows it owns and, before adding to a row it does not own, waits until
+    the owner has finished it. Each owner reaches its last owned row before it needs a row of the other half,
+    so neither waits for long and there is no deadlock."""
+    import threading
+
+    H, W, D = C.shape
+    half = (H + 1) // 2
+    done = [0, 0]  # rows finished: top-down from row 0, bottom-up from row H - 1
+    cond = threading.Condition()
+    errors: list[BaseException] = []
+
+    def run(k: int) -> None:
+        p2g, dg, downward = groups[k]
+        L, M = sweep_state_i16(dg.shape[0], W, D)
+        owned = half if downward else H - half  # steps 0 .. owned - 1 are this sweep's own rows
+        other = 1 - k
+        try:
+            step = 0
+            while step < H:
+                end = min(step + SWEEP_CHUNK, owned if step < owned else H)
+                if step >= owned:  # the other sweep's rows: wait until it has finished them
+                    need = H - step  # rows [step, end) of this sweep are the other's steps < H - step
+                    with cond:
+                        cond.wait_for(lambda need=need: done[other] >= need or bool(errors))
+                    if errors:
+                        return
+                _sweep_i16(C, acc, s, P1s, p2g, dg, downward, step < owned, L, M, step, end)
+                with cond:
+                    done[k] = end
+                    cond.notify_all()
+                step = end
+        except BaseException as e:  # noqa: BLE001 - re-raised in the caller's thread
+            with cond:
+                errors.append(e)
+                cond.notify_all()
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]
 
 
 def fixed_to_float(acc: np.ndarray, s: int) -> np.ndarray:

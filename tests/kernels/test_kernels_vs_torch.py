@@ -89,12 +89,9 @@ def test_sgm_fixed_point_kernel_equals_torch_per_path_and_float_kernel(h, w, d, 
         assert np.array_equal(a, b), n
 
 
-def test_sgm_fixed_point_falls_back_when_not_exact(monkeypatch):
+def test_sgm_fixed_point_falls_back_when_not_exact():
     """Fixed point only where it is exact: penalties off the grid, a step that is not 1/2^k, or a sum that
-    would overflow int16 (255-bit costs, 16 paths) run the float32 kernel, with the float32 result; the
-    sequential (one-buffer) branch gives the concurrent one's bits."""
-    from stereonet.kernels import sgm as kernel
-
+    would overflow int16 (255-bit costs) run the float32 kernel, with the float32 result."""
     rng = np.random.default_rng(0)
     u8 = rng.integers(0, 49, (9, 21, 13)).astype(np.uint8)
     dirs = np.asarray(DIRECTIONS_16[:8], np.int64)
@@ -108,9 +105,34 @@ def test_sgm_fixed_point_falls_back_when_not_exact(monkeypatch):
     assert fixed_point_scale(big, 2.0, p2, 8, 1 / 16) is None  # 8 x 16 x (255 + 48) > 32767
     assert np.array_equal(sgm_numba_hwd(big, np.float32(2.0), p2, dirs, penalty_step=1 / 16),
                           sgm_numba_hwd(big.astype(np.float32), np.float32(2.0), p2, dirs))
-    concurrent = sgm_fixed_hwd(u8, 2.0, p2, dirs, 16)
-    monkeypatch.setattr(kernel, "CONCURRENT_MAX_BYTES", 0)
-    assert np.array_equal(sgm_fixed_hwd(u8, 2.0, p2, dirs, 16), concurrent)
+
+
+@pytest.mark.parametrize("h", [1, 2, 3, 5, 17, 40])
+@pytest.mark.parametrize("chunk", [1, 3, 16])
+def test_fixed_point_concurrent_sweeps_share_one_buffer_exactly(h, chunk, monkeypatch):
+    """The two sweeps on two threads into one int16 buffer (rows handed over in the middle, in chunks)
+    give the one-thread result bit for bit, for odd/even heights, chunks of 1 row up to more than half."""
+    import numba
+
+    from stereonet.kernels import sgm as kernel
+
+    monkeypatch.setattr(kernel, "SWEEP_CHUNK", chunk)
+    rng = np.random.default_rng(h * 31 + chunk)
+    u8 = rng.integers(0, 49, (h, 23, 11)).astype(np.uint8)
+    dirs = np.asarray(DIRECTIONS_16, np.int64)  # 16 paths: knight moves cross two rows
+    p2 = (rng.integers(2 * 16, 30 * 16, (16, h, 23)) / 16).astype(np.float32)
+    assert numba.get_num_threads() >= 1
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        sequential = sgm_fixed_hwd(u8, 2.0, p2, dirs, 16)
+    finally:
+        numba.set_num_threads(before)
+    if before < 2:
+        pytest.skip("one numba thread on this machine: the concurrent branch does not run")
+    assert np.array_equal(sgm_fixed_hwd(u8, 2.0, p2, dirs, 16), sequential)
+    float_ref = sgm_numba_hwd(u8.astype(np.float32), np.float32(2.0), p2, dirs)
+    assert np.array_equal(fixed_to_float(sequential, 16), float_ref)
 
 
 def test_fixed_point_selection_equals_float_selection():
