@@ -1,11 +1,11 @@
 """Large pairs: ``sgm`` against OpenCV's SGBM in wall time (2 threads) and peak memory, as ``infer.py`` runs it.
 
-    python scripts/bench_large.py [--cases kitti,6mp,16mp] [--repeats 3] [--budget 4096] [--json FILE]
+    python scripts/bench_large.py [--cases kitti,6mp,16mp] [--repeats 3] [--budget 2048] [--json FILE]
 
-Cases: ``kitti`` = the KITTI 2015 pair of ../shared/data (1242x375, 192 disparities, as eval.py picks for
+Cases: ``kitti`` = the KITTI 2015 pair of ../shared/data (1242x375, its ground truth's disparity range, as eval.py picks for
 KITTI); ``6mp`` = a data_gen pair rendered at 2964x2000 with 256 disparities; ``16mp`` = 4608x3456 with 256
 disparities (one run of sgm, to show it runs under the budget; SGBM beside it). Each method runs through
-:func:`stereonet.tiling.match_with_budget` with ``--budget`` MiB (infer.py's default 4096, the 8 GB-laptop
+:func:`stereonet.tiling.match_with_budget` with ``--budget`` MiB (infer.py's default 2048, the 8 GB-laptop
 default), torch/numba/OpenCV on 2 threads, in this one process, interleaved; the table gives the median wall
 seconds, the ratio to ``opencv-sgbm`` on the same pair, Mde/s (W x H x (D + 1) per second) and the peak
 extra resident memory of one call (:class:`stereonet.measure.PeakMemory`).

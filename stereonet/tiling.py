@@ -24,7 +24,10 @@ from stereonet.checks import StereoInputError
 from stereonet.measure import PeakMemory
 from stereonet.types import StereoOutput
 
-DEFAULT_BUDGET_MIB = 4096  # fits an 8 GB laptop beside the rest of the process
+# fits an 8 GB laptop beside the rest of the process (and a browser); measured with scripts/bench_large.py, sgm on
+# a 6 MP / 256-disparity pair is *faster* in 5 strips under 2048 MiB (1.24x SGBM, peak 1.4 GiB) than in 2 under
+# 4096 (1.37x, 2.8 GiB): smaller strips stay in cache, which pays for the overlap rows
+DEFAULT_BUDGET_MIB = 2048
 DEFAULT_OVERLAP = 48
 MIN_CORE = 16
 PROBE_ROWS = 32

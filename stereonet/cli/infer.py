@@ -45,6 +45,7 @@ import torch
 
 from stereonet.checks import StereoInputError
 from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail, weights_available
+from stereonet.tiling import DEFAULT_BUDGET_MIB
 
 PROG = "infer.py"
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
@@ -257,7 +258,7 @@ class Settings:
     unit: str | None = None  # unit of the calibration's baseline; None = unknown
     cloud_frame: str = "rectified"
     output_scale: float = 1.0  # the matcher's output grid / the processed images (SMD's continuous head)
-    memory_budget: float = 4096.0  # MiB a matcher call may use; larger pairs run in overlapping strips
+    memory_budget: float = float(DEFAULT_BUDGET_MIB)  # MiB a matcher call may use; larger pairs run in strips
     # a fixed rig's rectification (geometry, maps, content masks), computed for the first pair of a batch
     rig_cache: dict = field(default_factory=dict)
 
@@ -584,8 +585,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--output-scale", type=float, default=1.0,
                    help="answer on a grid S times the processed images (0.25 <= S <= 4), for methods with a "
                         "continuous output head (smd); disparity then in pixels of that grid")
-    p.add_argument("--memory-budget", type=float, default=4096.0, metavar="MIB",
-                   help="extra memory one matcher call may use (default 4096 MiB, for an 8 GB laptop); larger "
+    p.add_argument("--memory-budget", type=float, default=float(DEFAULT_BUDGET_MIB), metavar="MIB",
+                   help=f"extra memory one matcher call may use (default {DEFAULT_BUDGET_MIB} MiB, for an 8 GB "
+                        "laptop); larger "
                         "pairs are matched in overlapping strips of rows")
     p.add_argument("--min-disp", type=int, default=0,
                    help="smallest disparity searched (negative for rigs with converging cameras; default 0)")
