@@ -12,7 +12,10 @@ def test_warm_up_runs_every_classical_matcher_and_compiles_the_sgm_kernel():
     steps = dict(warm_up(verbose=False))
     classical = [n for n in matchers.available() if matchers.spec(n).kind == "classical"]
     assert set(classical) <= set(steps) and {"fill", "data_gen"} <= set(steps)
-    assert _sgm_numba._sweep.signatures  # compiled (or loaded from the on-disk cache) in this process
+    # compiled (or loaded from the on-disk cache) in this process: the 16-bit path of sgm's default (census)
+    # and the float32 one of siamese-census-sgm's mixed cost
+    assert _sgm_numba._sweep_i16.signatures and _sgm_numba.p2_maps_fixed.signatures
+    assert _sgm_numba._sweep.signatures
 
 
 def test_main_quiet_prints_nothing(capsys):
