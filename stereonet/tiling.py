@@ -32,7 +32,8 @@ DEFAULT_OVERLAP = 48
 MIN_CORE = 16
 PROBE_ROWS = 32
 SAFETY = 0.7  # share of the budget the planned strips may use (the probe's measurement is a lower bound)
-# Bytes per (pixel x disparity) that no matcher here exceeds (sgm peaks at ~14 on Cones, the networks lower):
+# Bytes per (pixel x disparity) that no matcher here exceeds (sgm peaks at ~4 on Cones since its 16-bit
+# aggregation, ~14 before; the float32 energy matchers and the networks stay below 32 too):
 # a pair whose W x H x (D + 1) times this fits the budget runs whole, without a probe.
 UPPER_BYTES_PER_CELL = 32
 
