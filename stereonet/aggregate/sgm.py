@@ -250,26 +250,32 @@ def sgm_aggregate_hwd(costs, P1: float, P2: float, directions, image: torch.Tens
     return total.permute(0, 3, 1, 2)  # BxDxHxW
 
 
-def sgm_aggregate_fixed_hwd(cost_hwd: np.ndarray, P1: float, P2: float, directions, image: torch.Tensor | None,
-                            p2_alpha: float, penalty_step: float | None,
-                            cost_max: int | None = None) -> tuple[np.ndarray, int] | None:
-    """The 16-bit kernel of :func:`sgm_aggregate_hwd` for one uint8 ``(H, W, D)`` cost (guide ``image``
-    :math:`(C, H, W)` or None): ``(acc, s)`` with ``acc`` int16 ``(H, W, D)`` = ``s * S`` exactly, or None
-    when fixed point is not exact for these costs and penalties (``penalty_step`` not ``1 / 2^k``, or the sums
-    would not fit int16: :func:`stereonet.kernels.sgm.fits_int16`; use :func:`sgm_aggregate_hwd` then).
-    ``cost_max``: a known bound of the cost (e.g. the census bit count), else its maximum is taken."""
-    from stereonet.kernels.sgm import fits_int16, grid_scale, p2_maps_fixed, sgm_fixed_hwd
+def fixed_point_scale_for(P1: float, P2: float, directions, penalty_step: float | None,
+                          cost_max: int) -> int | None:
+    """``s`` for :func:`sgm_aggregate_fixed_hwd` when 16-bit fixed point is exact for uint8 costs up to
+    ``cost_max`` and these penalties (``penalty_step`` = ``1 / s`` with ``s = 2^k``, and the sums over the
+    ``directions`` within int16: :func:`stereonet.kernels.sgm.fits_int16`; every ``P2(p, r)`` is at most
+    ``P2``), else None (use :func:`sgm_aggregate_hwd`). Decided from the scalars alone, once per call."""
+    from stereonet.kernels.sgm import fits_int16, grid_scale
 
     s = grid_scale(penalty_step)
-    if s is None or cost_hwd.dtype != np.uint8 or cost_hwd.size == 0:
+    if s is None:
         return None
+    P1, P2 = quantize_penalty(P1, penalty_step), quantize_penalty(P2, penalty_step)
+    return s if fits_int16(s, cost_max, P1, P2, len(directions)) else None
+
+
+def sgm_aggregate_fixed_hwd(cost_hwd: np.ndarray, P1: float, P2: float, directions, image: torch.Tensor | None,
+                            p2_alpha: float, penalty_step: float, s: int) -> np.ndarray:
+    """The 16-bit kernel of :func:`sgm_aggregate_hwd` for one uint8 ``(H, W, D)`` cost (guide ``image``
+    :math:`(C, H, W)` or None) whose values and penalties :func:`fixed_point_scale_for` accepted with ``s``:
+    int16 ``(H, W, D)`` = ``s * S`` exactly."""
+    from stereonet.kernels.sgm import p2_maps_fixed, sgm_fixed_hwd
+
     dirs = np.asarray(directions, dtype=np.int64)
     P1, P2 = quantize_penalty(P1, penalty_step), quantize_penalty(P2, penalty_step)
-    c_max = int(cost_hwd.max()) if cost_max is None else cost_max
-    if not fits_int16(s, c_max, P1, P2, dirs.shape[0]):  # every P2(p, r) <= P2
-        return None
     h, w = cost_hwd.shape[:2]
     alpha = 0.0 if image is None else p2_alpha
     grey = np.zeros((h, w), np.float32) if image is None else grey_numpy(image)
     p2 = p2_maps_fixed(grey, np.float32(P1), np.float32(P2), np.float32(alpha), dirs, s)
-    return sgm_fixed_hwd(cost_hwd, np.float32(P1), p2, dirs, s), s
+    return sgm_fixed_hwd(cost_hwd, np.float32(P1), p2, dirs, s)

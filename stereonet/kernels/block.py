@@ -35,7 +35,7 @@ from stereonet.kernels.select import (
     lr_check_row,
     select_row_t,
     subpixel_offset,
-    transpose_row,
+    transpose_row_scaled,
 )
 
 ROW_BLOCK = 32
@@ -361,7 +361,7 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
                     row = ring[y % n_ring]
                 row_max[y] = _row_max(row, hs)
                 if sel:
-                    transpose_row(row, T)
+                    transpose_row_scaled(row, T, np.float32(1.0))
                     select_row_t(T, y, method, keep, ratio > 0, True, disp, min_cost, unique, dint, strip,
                                  disp_right, best, bi, second, best_r)
                     if lr_tol >= 0:

@@ -176,18 +176,9 @@ def wta_right_hwd(vol):
 
 
 @numba.njit(cache=True, fastmath=False)
-def transpose_row(row, T):
-    """T[d, x] = row[x, d] for a (W, D) cost row (strided stores that stay in L1)."""
-    W, D = row.shape
-    for x in range(W):
-        r = row[x]
-        for d in range(D):
-            T[d, x] = r[d]
-
-
-@numba.njit(cache=True, fastmath=False)
 def transpose_row_scaled(row, T, inv_scale):
-    """T[d, x] = float32(row[x, d]) * inv_scale (a float32 row with inv_scale = 1: the same bits)."""
+    """T[d, x] = float32(row[x, d]) * inv_scale for a (W, D) cost row (strided stores that stay in L1; a
+    float32 row with inv_scale = 1: the same bits)."""
     W, D = row.shape
     for x in range(W):
         r = row[x]

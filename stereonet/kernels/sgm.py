@@ -180,11 +180,6 @@ _I16_SENTINEL = np.int16(0x3FFF)  # "no disparity here" in the padded int16 path
 _I16_MAX = 32767
 
 
-@numba.njit(fastmath=False, inline="always")
-def _min16(a, b):
-    return a if a < b else b
-
-
 def sweep_state_i16(G: int, W: int, D: int) -> tuple[np.ndarray, np.ndarray]:
     """The ring of padded path-cost rows ``L`` and their minima ``M`` that :func:`_sweep_i16` carries from
     one chunk of rows to the next (``L`` starts at the sentinel)."""
@@ -227,15 +222,15 @@ def _sweep_i16(C, S, scale, P1, p2, dirs, downward, assign, L, M, step0, step1):
                     m = M[q]
                     big = np.int16(m + p2[g, y, x])
                     for d in range(D):
-                        t = _min16(_min16(prev[d + 1], np.int16(prev[d] + P1)),
-                                   _min16(np.int16(prev[d + 2] + P1), big))
+                        t = _min(_min(prev[d + 1], np.int16(prev[d] + P1)),
+                                   _min(np.int16(prev[d + 2] + P1), big))
                         v = np.int16(cs[d] + np.int16(t - m))
                         out[d + 1] = v
-                        mi = _min16(mi, v)
+                        mi = _min(mi, v)
                 else:
                     for d in range(D):
                         out[d + 1] = cs[d]
-                        mi = _min16(mi, cs[d])
+                        mi = _min(mi, cs[d])
                 M[o] = mi
                 if assign and g == 0:
                     for d in range(D):
@@ -243,17 +238,6 @@ def _sweep_i16(C, S, scale, P1, p2, dirs, downward, assign, L, M, step0, step1):
                 else:
                     for d in range(D):
                         s_row[d] += out[d + 1]
-
-
-@numba.njit(parallel=True, cache=True, fastmath=False)
-def _i16_to_float(a, inv_scale, out):
-    """out = a * inv_scale (exact for int16 a and a power-of-two inv_scale)."""
-    H = a.shape[0]
-    for y in prange(H):
-        ay, oy = a[y], out[y]
-        for x in range(ay.shape[0]):
-            for d in range(ay.shape[1]):
-                oy[x, d] = np.float32(ay[x, d]) * inv_scale
 
 
 def grid_scale(penalty_step: float | None) -> int | None:
@@ -398,9 +382,7 @@ def _shared_sweeps(C: np.ndarray, acc: np.ndarray, s: np.int16, P1s: np.int16, g
 
 def fixed_to_float(acc: np.ndarray, s: int) -> np.ndarray:
     """float32 ``acc / s`` (exact) of an :func:`sgm_fixed_hwd` result."""
-    out = np.empty(acc.shape, np.float32)
-    _i16_to_float(acc, np.float32(1.0 / s), out)
-    return out
+    return np.multiply(acc, np.float32(1.0 / s), dtype=np.float32)
 
 
 CONCURRENT_MAX_BYTES = 256 * 2**20  # above this float32 volume size the two sweeps share one buffer (sequential)

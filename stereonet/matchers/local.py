@@ -34,6 +34,7 @@ import torch
 from stereonet.aggregate.sgm import (
     CENSUS_PENALTY_STEP,
     check_sgm_options,
+    fixed_point_scale_for,
     sgm_aggregate,
     sgm_aggregate_fixed_hwd,
     sgm_aggregate_hwd,
@@ -233,21 +234,19 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         # volume is added by one numba pass per image (mix_costs_hwd, the float32 sum of the torch path)
         directions = check_sgm_options(P1, P2, paths, p2_alpha)
         vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
-        if extra is None and not keep_volume:
-            bits = census_window * census_window  # >= every census distance and the out-of-image fill
-            fixed = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step, cost_max=bits)
-                     for i, v in enumerate(vols)]
-            if all(f is not None for f in fixed) and len({f[1] for f in fixed}) == 1:
-                # 16-bit fixed point: select straight from the int16 aggregate (no float32 volume)
-                del vols
-                selection, confidence = select_disparity_confidence_fixed(
-                    [f[0] for f in fixed], fixed[0][1], back.pop("subpixel"), back.pop("uniqueness"),
-                    back.pop("lr_tol"), left.dtype, left.device)
-                del fixed
-                out = _filter(selection, None, **back)
-                out.confidence = confidence * out.valid.to(confidence.dtype)
-                return out
-            del fixed  # fixed point not exact for these costs / penalties: the float32 kernel below
+        bits = census_window * census_window  # >= every census distance and the out-of-image fill
+        s = None if extra is not None or keep_volume else fixed_point_scale_for(P1, P2, directions, step, bits)
+        if s is not None:
+            # 16-bit fixed point: select straight from the int16 aggregate (no float32 volume)
+            accs = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step, s)
+                    for i, v in enumerate(vols)]
+            del vols
+            selection, confidence = select_disparity_confidence_fixed(
+                accs, s, back.pop("subpixel"), back.pop("uniqueness"), back.pop("lr_tol"), left.dtype, left.device)
+            del accs
+            out = _filter(selection, None, **back)
+            out.confidence = confidence * out.valid.to(confidence.dtype)
+            return out
         if extra is not None:
             vols = _mixed_hwd(vols, *extra)
         agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step).to(left.device)

@@ -114,7 +114,7 @@ def select_disparity_confidence(cost: torch.Tensor, subpixel: str | None = "para
         ``(selection, confidence)``: the 5-tuple of :func:`select_disparity` and :math:`(B, 1, H, W)`
         confidence in [0, 1] (dtype and device of ``cost``).
     """
-    from stereonet.select.confidence import EPS, cost_margin_confidence
+    from stereonet.select.confidence import cost_margin_confidence
 
     check_cost_volume(cost)
     method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
@@ -124,16 +124,9 @@ def select_disparity_confidence(cost: torch.Tensor, subpixel: str | None = "para
     if not numba_path:
         return (select_disparity(cost, subpixel, uniqueness, lr_tol, backend=backend),
                 cost_margin_confidence(cost, backend="torch" if backend == "torch" else "auto"))
-    from stereonet.kernels.select import select_confidence_hwd
-
-    outs, confs = [], []
-    for b in range(cost.shape[0]):
-        vol = cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
-        res = select_confidence_hwd(vol, method, ratio, tol, np.float32(EPS))
-        outs.append([torch.from_numpy(a) for a in res[:5]])
-        confs.append(torch.from_numpy(res[5]))
-    conf = torch.stack(confs)[:, None].to(device=cost.device, dtype=cost.dtype)
-    return _stack_selection(outs, cost.dtype, cost.device), conf
+    vols = (cost[b].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy()  # HxWxD, no copy
+            for b in range(cost.shape[0]))
+    return _select_confidence_hwd(vols, 1.0, method, ratio, tol, cost.dtype, cost.device)
 
 
 def select_disparity_confidence_fixed(acc_hwd: list, s: int, subpixel: str | None = "parabola",
@@ -144,17 +137,23 @@ def select_disparity_confidence_fixed(acc_hwd: list, s: int, subpixel: str | Non
     ``(H, W, D)`` arrays holding ``s * cost`` (:func:`stereonet.aggregate.sgm.sgm_aggregate_fixed_hwd`). The
     same numbers as the float32 volume ``acc / s`` would give (converted exactly, row by row, inside the
     selection pass), without materialising it."""
+    method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
+    return _select_confidence_hwd(acc_hwd, 1.0 / s, method, ratio, tol, dtype, torch.device(device))
+
+
+def _select_confidence_hwd(vols, inv_scale: float, method: int, ratio: float, tol: float, dtype: torch.dtype,
+                           device: torch.device) -> tuple[tuple, torch.Tensor]:
+    """The numba pass of both selections above over B ``(H, W, D)`` arrays of costs ``vol * inv_scale``."""
     from stereonet.kernels.select import select_confidence_hwd
     from stereonet.select.confidence import EPS
 
-    method, ratio, tol = selection_args(subpixel, uniqueness, lr_tol)
     outs, confs = [], []
-    for acc in acc_hwd:
-        res = select_confidence_hwd(acc, method, ratio, tol, np.float32(EPS), 1.0 / s)
+    for vol in vols:
+        res = select_confidence_hwd(vol, method, ratio, tol, np.float32(EPS), inv_scale)
         outs.append([torch.from_numpy(a) for a in res[:5]])
         confs.append(torch.from_numpy(res[5]))
     conf = torch.stack(confs)[:, None].to(device=device, dtype=dtype)
-    return _stack_selection(outs, dtype, torch.device(device)), conf
+    return _stack_selection(outs, dtype, device), conf
 
 
 def _stack_selection(outs: list, dtype: torch.dtype, device: torch.device) -> tuple:
