@@ -30,6 +30,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from stereonet.kernels.cost import popcount64
 from stereonet.kernels.select import (
     is_unique,
     lr_check_row,
@@ -42,21 +43,6 @@ ROW_BLOCK = 32
 KIND_ABS, KIND_SQ, KIND_PROD, KIND_HAMMING, KIND_CENSUS_AD = 0, 1, 2, 3, 4
 POST_NONE, POST_NCC, POST_MULTIWINDOW, POST_SHIFTABLE = 0, 1, 2, 3
 MODE_VOLUME, MODE_SELECT = 0, 1
-_M1 = np.uint64(0x5555555555555555)
-_M2 = np.uint64(0x3333333333333333)
-_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
-
-
-@numba.njit(cache=True, fastmath=False)
-def _popcount(x):
-    """Set bits of a uint64 (SWAR with shifts only, so it vectorises)."""
-    x = x - ((x >> np.uint64(1)) & _M1)
-    x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
-    x = (x + (x >> np.uint64(4))) & _M4
-    x = x + (x >> np.uint64(8))
-    x = x + (x >> np.uint64(16))
-    x = x + (x >> np.uint64(32))
-    return x & np.uint64(0x7F)
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -94,12 +80,12 @@ def _pixel_cost_row(kind, y, L, R, CL, CR, lam_c, lam_a, rrev, crev, out):
             cr = crev[0, base:base + nv]
             cv = CL[0, y, x]
             for d in range(nv):
-                t[d] = np.float32(_popcount(cv ^ cr[d]))
+                t[d] = np.float32(popcount64(cv ^ cr[d]))
             for k in range(1, CL.shape[0]):
                 cv = CL[k, y, x]
                 cr = crev[k, base:base + nv]
                 for d in range(nv):
-                    t[d] += np.float32(_popcount(cv ^ cr[d]))
+                    t[d] += np.float32(popcount64(cv ^ cr[d]))
         else:
             r0 = rrev[0, base:base + nv]
             l0 = L[0, y, x]
@@ -129,7 +115,7 @@ def _pixel_cost_row(kind, y, L, R, CL, CR, lam_c, lam_a, rrev, crev, out):
                 for d in range(nv):
                     n = np.uint64(0)
                     for k in range(CL.shape[0]):
-                        n += _popcount(CL[k, y, x] ^ crev[k, base + d])
+                        n += popcount64(CL[k, y, x] ^ crev[k, base + d])
                     t[d] = (np.float32(2.0) - np.exp(-np.float32(n) / lam_c)) - np.exp(-t[d] / lam_a)
         o = out[x]
         last = o[nv - 1]

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba import prange
+from numba import prange, types
+from numba.extending import intrinsic
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -84,16 +85,17 @@ def census_khw(grey, window, bits_per_word):
     return out
 
 
-@numba.njit(cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
-def _popcount64(x):
-    """Set bits of a uint64 (SWAR with shifts only, so it vectorises)."""
-    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    x = x + (x >> np.uint64(8))
-    x = x + (x >> np.uint64(16))
-    x = x + (x >> np.uint64(32))
-    return x & np.uint64(0x7F)
+@intrinsic
+def popcount64(typingctx, x):
+    """Set bits of a uint64 as LLVM's ``ctpop`` (one POPCNT, or a vectorised nibble-table count inside a
+    vectorised loop: about twice the speed of the shift-and-mask SWAR count it replaced, the same value)."""
+    if not (isinstance(x, types.Integer) and x.bitwidth == 64 and not x.signed):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.ctpop(args[0])
+
+    return types.uint64(x), codegen
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)  # integer kernel: fastmath would change nothing
@@ -109,28 +111,25 @@ def census_hamming_hwd_u8(codes_l, codes_r, n_disp):
     row_max = np.zeros(H, np.int64)
     for y in prange(H):
         rev = np.empty((K, W), np.uint64)  # rev[k, j] = codes_r[k, y, W - 1 - j]: right[x - d] = rev[W - 1 - x + d]
-        acc = np.empty(D, np.int64)
         for k in range(K):
             for j in range(W):
                 rev[k, j] = codes_r[k, y, W - 1 - j]
-        m = 0
+        m = np.uint8(0)
         for x in range(W):
             nv = min(x + 1, D)
             base = W - 1 - x
+            o = vol[y, x, :nv]
             cl = codes_l[0, y, x]
             r0 = rev[0, base:base + nv]
-            for d in range(nv):
-                acc[d] = np.int64(_popcount64(cl ^ r0[d]))
-            for k in range(1, K):
+            for d in range(nv):  # one word (census windows <= 9): straight into the uint8 row
+                o[d] = np.uint8(popcount64(cl ^ r0[d]))
+            for k in range(1, K):  # the sum of K words stays below 255 bits
                 cl = codes_l[k, y, x]
                 rk = rev[k, base:base + nv]
                 for d in range(nv):
-                    acc[d] += np.int64(_popcount64(cl ^ rk[d]))
-            o = vol[y, x]
+                    o[d] += np.uint8(popcount64(cl ^ rk[d]))
             for d in range(nv):
-                v = acc[d]
-                m = max(m, v)
-                o[d] = np.uint8(v)
+                m = max(m, o[d])
         row_max[y] = m
     return vol, row_max
 

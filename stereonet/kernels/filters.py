@@ -9,10 +9,14 @@ import numpy as np
 
 @numba.njit(inline="always", fastmath=False)
 def _sort2(a, b):
-    return (a, b) if a <= b else (b, a)
+    """Compare-exchange written as two selects (no branch: LLVM vectorises the loops that use it);
+    ``a <= b`` false (b smaller, or a NaN) swaps, as ``(a, b) if a <= b else (b, a)`` does."""
+    lo = a if a <= b else b
+    hi = b if a <= b else a
+    return lo, hi
 
 
-@numba.njit(cache=True, fastmath=False)
+@numba.njit(inline="always", fastmath=False)
 def _median9(p0, p1, p2, p3, p4, p5, p6, p7, p8):
     """Median of nine values by the 19-exchange network (Paeth's opt_med9): the 5th smallest, the value the
     insertion sort of :func:`median_kernel` picks for nine samples."""
@@ -41,20 +45,47 @@ def _median9(p0, p1, p2, p3, p4, p5, p6, p7, p8):
 # fastmath=False: comparisons only (exact), and NaN disparities must not be assumed away
 @numba.njit(parallel=True, cache=True, fastmath=False)
 def median_kernel(disp: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
-    """Lower median of the valid samples of each size x size window (replicated border). Interior 3x3
-    windows with nine valid samples take the sorting network :func:`_median9` (the same value)."""
+    """Lower median of the valid samples of each size x size window (replicated border).
+
+    3x3: one branch-free pass of the sorting network :func:`_median9` over every interior pixel (vectorised
+    over the row; the same value as sorting nine samples), then, where a window holds ``m`` invalid pixels,
+    the network again with ``j = 4 - (8 - m) // 2`` of them set to -inf and the rest to +inf, so that its 5th
+    smallest is the ``(n - 1) // 2``-th of the ``n = 9 - m`` valid ones (the lower median). Windows across
+    the border, and other sizes, sort their valid samples.
+    """
     h, w = disp.shape
     r = size // 2
     out = np.empty_like(disp)
+    net = size == 3 and h >= 3 and w >= 3
+    if net:
+        for y in numba.prange(1, h - 1):
+            a, b, c = disp[y - 1], disp[y], disp[y + 1]
+            o = out[y]
+            for x in range(1, w - 1):
+                o[x] = _median9(a[x - 1], a[x], a[x + 1], b[x - 1], b[x], b[x + 1], c[x - 1], c[x], c[x + 1])
     for y in numba.prange(h):
         buf = np.empty(size * size, disp.dtype)
         for x in range(w):
-            if size == 3 and 0 < y < h - 1 and 0 < x < w - 1 and (
-                    valid[y - 1, x - 1] & valid[y - 1, x] & valid[y - 1, x + 1] & valid[y, x - 1] & valid[y, x]
-                    & valid[y, x + 1] & valid[y + 1, x - 1] & valid[y + 1, x] & valid[y + 1, x + 1]):
-                out[y, x] = _median9(disp[y - 1, x - 1], disp[y - 1, x], disp[y - 1, x + 1], disp[y, x - 1],
-                                     disp[y, x], disp[y, x + 1], disp[y + 1, x - 1], disp[y + 1, x],
-                                     disp[y + 1, x + 1])
+            if net and 0 < y < h - 1 and 0 < x < w - 1:
+                m = 0
+                for k in range(9):
+                    m += not valid[y - 1 + k // 3, x - 1 + k % 3]
+                if m == 0:
+                    continue  # the network's value stands
+                if m < 9:
+                    j = 4 - (8 - m) // 2  # invalid samples sent to -inf; the other m - j to +inf
+                    for k in range(9):
+                        yy, xx = y - 1 + k // 3, x - 1 + k % 3
+                        if valid[yy, xx]:
+                            buf[k] = disp[yy, xx]
+                        elif j > 0:
+                            buf[k] = -np.inf
+                            j -= 1
+                        else:
+                            buf[k] = np.inf
+                    out[y, x] = _median9(buf[0], buf[1], buf[2], buf[3], buf[4], buf[5], buf[6], buf[7], buf[8])
+                else:
+                    out[y, x] = disp[y, x]
                 continue
             n = 0
             for yy in range(y - r, y + r + 1):
