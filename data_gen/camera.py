@@ -7,6 +7,11 @@ covers ``[x - 0.5, x + 0.5] x [y - 0.5, y + 0.5]``; pixel centres are integer co
 Ray directions are ``R^T (x_n, y_n, 1)`` with undistorted normalized coordinates ``(x_n, y_n)``, so the ray
 parameter ``t`` of a hit equals the hit's depth ``z`` in that camera's frame.
 
+This is the one camera model of the project: :mod:`stereonet.geometry.camera` holds the same projection as
+differentiable functions of ``K, R, t, dist`` (tested equal in ``tests/geometry/test_camera_models.py``),
+and :mod:`stereonet.active` uses these cameras (and projectors) directly; :meth:`Camera.pinhole` with
+:func:`look_at` builds one from a focal length, an image size and a viewpoint.
+
 Ray sets expose the few scalar products the primitives need (``w . d``, ``w . o``, ``d . d``, ``d . o``,
 ``o . o``) instead of the directions themselves, so that on an undistorted grid every linear functional
 ``w . d = a x + b y + c`` is one broadcast add of a row and a column vector.
@@ -18,6 +23,29 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+
+
+def look_at(eye, target, up=(0.0, -1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera pose ``(R, t)`` of a camera at ``eye`` looking at ``target``, ``up`` at the top of the image.
+
+    The default ``up = -y`` suits a y-down world like the camera frame (x right, y down, z forward), in which
+    the identity pose looks down +z. The rows of ``R`` are the camera axes in world coordinates and
+    ``t = -R eye``, so that ``X_cam = R X + t``.
+    """
+    eye, target, up = (np.asarray(v, dtype=np.float64).reshape(3) for v in (eye, target, up))
+    for name, v in (("eye", eye), ("target", target), ("up", up)):
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{name}: expected finite values, got {v.tolist()}")
+    z = target - eye
+    if np.linalg.norm(z) < 1e-12:
+        raise ValueError("target: expected a point different from eye")
+    z = z / np.linalg.norm(z)
+    x = np.cross(-up, z)  # camera x (right) = down x forward (x = y x z in a right-handed frame)
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError("up: expected a direction not parallel to the viewing direction")
+    x = x / np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])
+    return R, -R @ eye
 
 
 @dataclass
@@ -51,6 +79,25 @@ class Camera:
             raise ValueError(f"size: expected positive (width, height), got {self.size}")
         self.size = (w, h)
 
+    @classmethod
+    def pinhole(cls, focal: float, width: int, height: int, eye=(0.0, 0.0, 0.0), target=None,
+                up=(0.0, -1.0, 0.0), cx: float | None = None, cy: float | None = None, dist=None) -> Camera:
+        """A camera of square pixels with focal length ``focal`` (pixels) and image ``width x height``.
+
+        The principal point is the image centre ``((W - 1) / 2, (H - 1) / 2)`` unless ``cx``, ``cy`` are given;
+        the centre of projection is ``eye``. With ``target`` the camera looks at it (:func:`look_at`, ``up`` at
+        the top of the image); without, it keeps the world axes (looks down +z).
+        """
+        cx = (width - 1) / 2.0 if cx is None else float(cx)
+        cy = (height - 1) / 2.0 if cy is None else float(cy)
+        K = np.array([[float(focal), 0.0, cx], [0.0, float(focal), cy], [0.0, 0.0, 1.0]])
+        if target is None:
+            eye = np.asarray(eye, dtype=np.float64).reshape(3)
+            R, t = np.eye(3), -eye
+        else:
+            R, t = look_at(eye, target, up)
+        return cls(K, R, t, (width, height), dist)
+
     @property
     def width(self) -> int:
         return self.size[0]
@@ -63,6 +110,11 @@ class Camera:
     def center(self) -> np.ndarray:
         """Camera centre in world coordinates :math:`(3,)`."""
         return -self.R.T @ self.t
+
+    def relative_to(self, other: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """Pose of this camera in ``other``'s frame: ``X_self = R X_other + t``, ``R`` :math:`(3, 3)`, ``t`` :math:`(3,)`."""
+        R = self.R @ other.R.T
+        return R, self.t - R @ other.t
 
     # -- distortion -------------------------------------------------------------------------------
     def distort(self, xn, yn):
@@ -93,7 +145,7 @@ class Camera:
 
     # -- projection -------------------------------------------------------------------------------
     def to_camera(self, points: torch.Tensor) -> torch.Tensor:
-        """World points :math:`(N, 3)` to camera coordinates :math:`(N, 3)`."""
+        """World points :math:`(*, 3)` to camera coordinates :math:`(*, 3)`."""
         if not np.any(self.R - np.eye(3)):
             return points + torch.as_tensor(self.t, dtype=points.dtype)
         R = torch.as_tensor(self.R, dtype=points.dtype)
@@ -101,11 +153,11 @@ class Camera:
         return points @ R.T + t
 
     def project(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Project world points :math:`(N, 3)` to pixels :math:`(N, 2)` (with distortion) and depths :math:`(N,)`."""
+        """Project world points :math:`(*, 3)` to pixels :math:`(*, 2)` (with distortion) and depths :math:`(*)`."""
         pc = self.to_camera(points)
-        z = pc[:, 2]
+        z = pc[..., 2]
         zs = torch.where(z.abs() > 1e-12, z, torch.full_like(z, 1e-12))
-        xd, yd = self.distort(pc[:, 0] / zs, pc[:, 1] / zs)
+        xd, yd = self.distort(pc[..., 0] / zs, pc[..., 1] / zs)
         K = self.K
         x = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
         y = K[1, 1] * yd + K[1, 2]
@@ -117,6 +169,13 @@ class Camera:
         yd = (y - K[1, 2]) / K[1, 1]
         xd = (x - K[0, 2] - K[0, 1] * yd) / K[0, 0]
         return self.undistort(xd, yd)
+
+    def ray_dirs(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """World directions :math:`(N, 3)` of the rays through pixel coordinates ``x, y`` :math:`(N,)`, scaled to
+        camera-frame z = 1 (a ray parameter is the depth), in the dtype of ``x``; the rays start at :attr:`center`."""
+        xn, yn = self.pixel_to_normalized(x.double(), y.double())
+        d_cam = torch.stack([xn, yn, torch.ones_like(xn)], dim=-1)
+        return (d_cam @ torch.as_tensor(self.R)).to(x.dtype)  # rows R^T d_cam
 
     def sample_coords(self, supersample: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Pixel coordinates of the sample grid: xs :math:`(W s,)`, ys :math:`(H s,)`.

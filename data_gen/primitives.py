@@ -1,5 +1,5 @@
 """Ray-traceable primitives: infinite planes (background walls), planar patches (polygons, ellipses, blobs),
-spheres and finite cylinders with caps.
+spheres and finite cylinders with caps; :func:`box_faces` builds a box from six rectangular patches.
 
 Every primitive implements
 
@@ -266,3 +266,23 @@ class Cylinder(Primitive):
         uv_cap = torch.stack([x, y], dim=-1)
         uv = torch.where(on_side[:, None], uv_side, uv_cap)
         return _face_ray(normals, dirs), uv
+
+
+def box_faces(lo, hi, material: Material | None = None) -> list[PlanarPatch]:
+    """The six rectangular faces of the axis-aligned box between corners ``lo`` and ``hi`` :math:`(3,)`, as
+    :class:`PlanarPatch` polygons (outward normals) sharing ``material``; texture (u, v) in each face's frame."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    if not np.all(hi > lo):
+        raise ValueError(f"hi: expected every coordinate above lo={lo.tolist()}, got {hi.tolist()}")
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    corners = np.array([math.pi / 4, 3 * math.pi / 4, 5 * math.pi / 4, 7 * math.pi / 4])  # square in the unit circle
+    faces = []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            normal = np.zeros(3)
+            normal[axis] = sign
+            e1, e2, _ = orthonormal_frame(normal)  # axis-aligned for an axis-aligned normal
+            scale = (math.sqrt(2) * float(np.abs(e1) @ half), math.sqrt(2) * float(np.abs(e2) @ half))
+            faces.append(PlanarPatch(centre + half[axis] * normal, normal, scale, "polygon",
+                                     angles=corners, material=material))
+    return faces

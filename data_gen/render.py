@@ -6,7 +6,10 @@
 * :func:`shade` — Lambertian + Blinn-Phong shading of hit points for one viewpoint, plus an optional extra
   light term (e.g. a projector pattern).
 * :func:`render_view` — radiance image (adaptively supersampled) plus exact centre-ray geometry of one camera.
-* :func:`visible_from` — which world points a camera sees (not hidden by a nearer surface).
+* :func:`render_sequence` — the same under a sequence of extra lights (a projector's patterns, a sweeping
+  laser sheet), tracing the rays once.
+* :func:`visible_from` — which world points a camera sees (not hidden by a nearer surface);
+  :func:`visible_from_point` — which are lit by a point source (shadows of a laser or a projector).
 """
 
 from __future__ import annotations
@@ -124,16 +127,33 @@ def sorted_surface(scene: Scene, grid: GridRays, t: torch.Tensor, ids: torch.Ten
     return _sorted_hit_surface(scene, ids.reshape(-1), t.reshape(-1), dirs_of, grid.origin, spacing, with_albedo)
 
 
-def render_rays(scene: Scene, camera: Camera, x: torch.Tensor, y: torch.Tensor, spacing: float,
-                specular: bool = True, extra_light_fn: Callable | None = None) -> torch.Tensor:
-    """Radiance :math:`(N, 3)` seen by ``camera`` along the rays through pixel coordinates ``x, y`` :math:`(N,)`;
+def pixel_surface(scene: Scene, camera: Camera, x: torch.Tensor, y: torch.Tensor,
+                  spacing: float) -> dict[str, torch.Tensor]:
+    """:func:`sorted_surface` of the rays of ``camera`` through pixel coordinates ``x, y`` :math:`(N,)`;
     ``spacing``: radians between neighbouring rays (texture band limit)."""
-    dirs = _pixel_rays(camera, x, y)
+    dirs = camera.ray_dirs(x, y)
     t, ids = _first_hits(scene, PointRays(camera.center, dirs), torch.stack([x, y], -1), camera)
-    srt = _sorted_hit_surface(scene, ids, t, lambda order: dirs[order], camera.center, spacing, True)
-    rgb, _ = shade(scene, srt["ids"], srt["points"], srt["normals"], srt["albedo"], camera.center, specular,
-                   extra_light_fn)
-    return unsort(rgb, srt["order"])
+    return _sorted_hit_surface(scene, ids, t, lambda order: dirs[order], camera.center, spacing, True)
+
+
+LightsFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+def shade_lights(scene: Scene, srt: dict[str, torch.Tensor], eye: np.ndarray, specular: bool,
+                 lights_fn: LightsFn | None) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """:func:`shade` of sorted hits ``srt`` (from :func:`sorted_surface`) once per light of ``lights_fn``.
+
+    ``lights_fn(points, normals, ids) -> (N, P)`` or :math:`(N, P, 3)` is evaluated once, on the sorted hits;
+    None shades once without extra light. Returns the P radiances :math:`(N, 3)` and the specular radiance
+    :math:`(N,)`, in the original (unsorted) order.
+    """
+    extra = None if lights_fn is None else lights_fn(srt["points"], srt["normals"], srt["ids"])
+    rgbs = []
+    for k in range(1 if extra is None else extra.shape[1]):
+        fn = None if extra is None else (lambda *_, e=extra[:, k]: e)
+        rgb, spec = shade(scene, srt["ids"], srt["points"], srt["normals"], srt["albedo"], eye, specular, fn)
+        rgbs.append(unsort(rgb, srt["order"]))
+    return rgbs, unsort(spec, srt["order"])
 
 
 def unsort(values: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
@@ -295,9 +315,7 @@ def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: fl
     hidden_sorted = torch.zeros_like(hidden)
     for obj in scene.objects:
         if isinstance(obj, Plane):
-            side_cam = float(obj.n @ centre) - obj.k
-            side_pts = points @ torch.as_tensor(obj.n, dtype=points.dtype) - obj.k
-            hidden |= side_pts * math.copysign(1.0, side_cam) < -rel_eps * abs(side_cam)
+            hidden |= _plane_hides(obj, centre, points, rel_eps)
             continue
         bs = obj.bounding_sphere()
         bbox = camera.pixel_bbox(bs[0], bs[1]) if bs is not None else (-math.inf, math.inf, -math.inf, math.inf)
@@ -316,6 +334,39 @@ def visible_from(scene: Scene, camera: Camera, points: torch.Tensor, rel_eps: fl
         hidden_sorted[sel] |= t < 1 - rel_eps
     hidden[order] |= hidden_sorted
     return inside & ~hidden
+
+
+def _plane_hides(plane: Plane, origin: np.ndarray, points: torch.Tensor, rel_eps: float) -> torch.Tensor:
+    """Bool :math:`(N,)`: an infinite plane hides a point from ``origin`` when the point is on its other side."""
+    side_cam = float(plane.n @ origin) - plane.k
+    side_pts = points @ torch.as_tensor(plane.n, dtype=points.dtype) - plane.k
+    return side_pts * math.copysign(1.0, side_cam) < -rel_eps * abs(side_cam)
+
+
+def visible_from_point(scene: Scene, source, points: torch.Tensor, rel_eps: float = 1e-4,
+                       compiled: bool | None = None) -> torch.Tensor:
+    """Bool :math:`(N,)`: True where the straight segment from a point ``source`` :math:`(3,)` (a point light: a
+    laser, a projector's centre) to each world point :math:`(N, 3)` crosses no surface of ``scene`` first.
+
+    The hiding rule of :func:`visible_from` (a hit with ``t < 1 - rel_eps``; an infinite plane hides the
+    points on its far side), with no image and no frustum: every object is tested on every segment.
+    ``compiled``: numba kernel (default ``USE_KERNELS``) or torch reference.
+    """
+    src = np.asarray(source, dtype=np.float64).reshape(3)
+    if USE_KERNELS if compiled is None else compiled:
+        from data_gen._kernels import hidden_points, pack_scene
+
+        packed = pack_scene(scene)  # no camera: unbounded pixel boxes, so the pixels below are never read
+        pts = np.ascontiguousarray(points.double().numpy())
+        hidden = np.empty(pts.shape[0], dtype=np.bool_)
+        hidden_points(pts, np.zeros((pts.shape[0], 2)), src, packed["objs"], packed["edges"], packed["blobs"],
+                      packed["boxes"], float(rel_eps), hidden)
+        return torch.from_numpy(~hidden)
+    hidden = torch.zeros(points.shape[0], dtype=torch.bool)
+    rays = PointRays(src, points - torch.as_tensor(src, dtype=points.dtype))
+    for obj in scene.objects:
+        hidden |= _plane_hides(obj, src, points, rel_eps) if isinstance(obj, Plane) else obj.intersect(rays) < 1 - rel_eps
+    return ~hidden
 
 
 def specular_radiance(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.Tensor,
@@ -348,7 +399,8 @@ def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.
           ) -> tuple[torch.Tensor, torch.Tensor]:
     """Radiance towards the camera at ``eye`` :math:`(3,)` of N hit points.
 
-    ``rgb = albedo * (ambient + (1 - ambient) max(0, n . l) + extra) + specular``, with Blinn-Phong
+    ``rgb = albedo * (ambient + (1 - ambient) max(0, n . l) + extra) + specular`` (``scene.light_strength`` in
+    place of ``1 - ambient`` when set), with Blinn-Phong
     ``specular = ks max(0, n . h)^shininess`` (h = half vector of light and view directions: it depends on
     the viewpoint, so it differs between the two cameras).
 
@@ -362,7 +414,8 @@ def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.
     """
     dtype = points.dtype
     light = torch.as_tensor(scene.light_dir, dtype=dtype)
-    irradiance = (normals @ (light * (1 - scene.ambient))).clamp_(min=0.0).add_(scene.ambient)[:, None]
+    strength = 1 - scene.ambient if scene.light_strength is None else scene.light_strength
+    irradiance = (normals @ (light * strength)).clamp_(min=0.0).add_(scene.ambient)[:, None]
     if extra_light_fn is not None:
         extra = extra_light_fn(points, normals, ids)
         irradiance = irradiance + (extra if extra.dim() == 2 else extra[:, None])
@@ -401,13 +454,6 @@ def edge_pixels(ids: torch.Tensor, normals: torch.Tensor | None = None, crease: 
         edge[1:] |= bend_y
         edge[:-1] |= bend_y
     return edge
-
-
-def _pixel_rays(camera: Camera, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """World directions :math:`(N, 3)` (camera-frame z = 1) of the rays through pixel coordinates ``x, y``."""
-    xn, yn = camera.pixel_to_normalized(x.double(), y.double())
-    d_cam = torch.stack([xn, yn, torch.ones_like(xn)], dim=-1)
-    return (d_cam @ torch.as_tensor(camera.R)).to(x.dtype)  # rows R^T d_cam
 
 
 def _kernel_trace(scene: Scene, camera: Camera, packed: dict, dirs: np.ndarray, pix: np.ndarray | None,
@@ -463,7 +509,7 @@ def render_view_arrays(scene: Scene, camera: Camera, supersample: int = 2, specu
         if camera.dist is None:
             dirs = pixel_dirs(camera.R.T @ np.linalg.inv(camera.K), pix)
         else:
-            dirs = _pixel_rays(camera, torch.from_numpy(pix[:, 0]), torch.from_numpy(pix[:, 1])).numpy()
+            dirs = camera.ray_dirs(torch.from_numpy(pix[:, 0]), torch.from_numpy(pix[:, 1])).numpy()
         sub_rgb = _kernel_trace(scene, camera, packed, dirs, pix, 1.0 / (s * f), specular)["rgb"]
     out["rgb"] = np.empty((h, w, 3), dtype=np.float32)
     finish_image(rgb, index, sub_rgb, s * s, out["rgb"])
@@ -495,7 +541,7 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     supersample`` rays and averaged (adaptive anti-aliasing).
 
     ``compiled``: use the numba kernels of :mod:`data_gen._kernels` (default: ``USE_KERNELS``, and only
-    without ``extra_light_fn``) or the torch reference (False).
+    without ``extra_light_fn`` and with the default ``scene.light_strength``) or the torch reference (False).
 
     Returns a dict with ``image`` :math:`(3, H, W)` radiance clipped to [0, 1], ``depth`` :math:`(H, W)`
     (z in this camera's frame, inf = miss), ``ids`` :math:`(H, W)` long, ``points`` and ``normals``
@@ -505,22 +551,48 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
     surface points towards that viewpoint (the other camera), for the view-dependence mask.
     (:func:`render_view_arrays` returns the compiled path's numpy arrays without torch conversions.)
     """
+    s = _check_supersample(supersample)
+    if compiled is None:
+        compiled = USE_KERNELS
+    if compiled and extra_light_fn is None and scene.light_strength is None:
+        return _render_view_kernels(scene, camera, s, specular, dtype, second_eye)
+    lights = None if extra_light_fn is None else (lambda p, n, i: extra_light_fn(p, n, i)[:, None])
+    out = _render_torch(scene, camera, s, specular, lights, dtype, second_eye)
+    return {"image": out.pop("images")[0], **out}
+
+
+def render_sequence(scene: Scene, camera: Camera, lights_fn: LightsFn | None, supersample: int = 2,
+                    specular: bool = True, dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
+    """:func:`render_view` of one camera under a sequence of P extra lights (the patterns of a projector, the
+    positions of a sweeping laser sheet): rays, hits, surfaces and the supersampled edge pixels are found once,
+    and only the shading runs per light.
+
+    ``lights_fn(points (N, 3), normals (N, 3), ids (N,)) -> (N, P)`` (grey) or :math:`(N, P, 3)` gives every
+    light's irradiance at once; light ``k`` is added to the diffuse term like ``render_view``'s
+    ``extra_light_fn`` (so ``render_sequence(..., lambda p, n, i: f(p, n, i)[:, None])["images"][0]`` is
+    ``render_view(..., extra_light_fn=f, compiled=False)["image"]``); None renders one image without extra
+    light. Torch path; returns render_view's dict with ``images`` :math:`(P, 3, H, W)` in place of ``image``.
+    """
+    return _render_torch(scene, camera, _check_supersample(supersample), specular, lights_fn, dtype, None)
+
+
+def _check_supersample(supersample: int) -> int:
     s = int(supersample)
     if s < 1:
         raise ValueError(f"supersample: expected an integer >= 1, got {supersample}")
-    if compiled is None:
-        compiled = USE_KERNELS
-    if compiled and extra_light_fn is None:
-        return _render_view_kernels(scene, camera, s, specular, dtype, second_eye)
+    return s
+
+
+def _render_torch(scene: Scene, camera: Camera, s: int, specular: bool, lights_fn: LightsFn | None,
+                  dtype: torch.dtype, second_eye: np.ndarray | None) -> dict[str, torch.Tensor]:
+    """The torch reference of :func:`render_view` under each light of ``lights_fn`` (see :func:`shade_lights`):
+    ``images`` :math:`(P, 3, H, W)` and the geometry of the centre rays."""
     w, h = camera.size
     grid = camera.grid_rays(1, dtype)
     t, ids, _ = raycast_grid(scene, grid)
     srt = sorted_surface(scene, grid, t, ids)
-    order = srt["order"]
-    rgb, spec = shade(scene, srt["ids"], srt["points"], srt["normals"], srt["albedo"], camera.center,
-                      specular, extra_light_fn)
-    rgb, spec = unsort(rgb, order), unsort(spec, order)
-    points, normals = unsort(srt["points"], order), unsort(srt["normals"], order)
+    rgbs, spec = shade_lights(scene, srt, camera.center, specular, lights_fn)
+    points, normals = unsort(srt["points"], srt["order"]), unsort(srt["normals"], srt["order"])
     edges = edge_pixels(ids, normals.reshape(h, w, 3)) if s > 1 else torch.zeros_like(ids, dtype=torch.bool)
     ey, ex = torch.nonzero(edges, as_tuple=True)
     if ey.numel():
@@ -528,11 +600,14 @@ def render_view(scene: Scene, camera: Camera, supersample: int = 2, specular: bo
         oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
         sx = (ex.to(dtype)[:, None] + ox.reshape(1, -1)).reshape(-1)  # (M*s*s,)
         sy = (ey.to(dtype)[:, None] + oy.reshape(1, -1)).reshape(-1)
-        sub = render_rays(scene, camera, sx, sy, 1.0 / (s * float(camera.K[0, 0])), specular, extra_light_fn)
-        rgb[ey * w + ex] = sub.reshape(-1, s * s, 3).mean(1)
-    img = rgb.reshape(h, w, 3).permute(2, 0, 1)  # 3xHxW
-    out = {"image": img.clamp(0.0, 1.0).contiguous(), "depth": t, "ids": ids, "points": points,
-           "normals": normals, "specular": spec.reshape(h, w), "edges": edges}
+        sub = pixel_surface(scene, camera, sx, sy, 1.0 / (s * float(camera.K[0, 0])))
+        for rgb, sub_rgb in zip(rgbs, shade_lights(scene, sub, camera.center, specular, lights_fn)[0]):
+            rgb[ey * w + ex] = sub_rgb.reshape(-1, s * s, 3).mean(1)
+    images = torch.empty(len(rgbs), 3, h, w, dtype=dtype)
+    for k, rgb in enumerate(rgbs):
+        images[k] = rgb.reshape(h, w, 3).permute(2, 0, 1).clamp(0.0, 1.0)  # 3xHxW
+    out = {"images": images, "depth": t, "ids": ids, "points": points, "normals": normals,
+           "specular": spec.reshape(h, w), "edges": edges}
     if second_eye is not None:
         out["specular_second"] = (specular_radiance(scene, ids.reshape(-1), points, normals, second_eye).reshape(h, w)
                                   if specular else torch.zeros(h, w, dtype=dtype))

@@ -86,6 +86,8 @@ class Scene:
         light_dir: unit vector from surfaces towards a directional light :math:`(3,)`.
         ambient: ambient fraction of the Lambertian term in [0, 1].
         max_disp: disparity bound the scene was built for (left camera, ``f B / z``).
+        light_strength: irradiance of the directional light on a surface facing it; None (the sampled scenes)
+            means ``1 - ambient``, so that a fully lit face receives 1. Other values render on the torch path.
     """
 
     objects: list[Primitive]
@@ -93,6 +95,7 @@ class Scene:
     ambient: float = 0.35
     max_disp: int = 0
     num_background: int = 1
+    light_strength: float | None = None
 
 
 def _rotation(axis_angle: np.ndarray) -> np.ndarray:

@@ -207,6 +207,12 @@ class Material:
     specular: float = 0.0
     shininess: float = 30.0
 
+    @classmethod
+    def flat(cls, color, **options) -> Material:
+        """A textureless material of RGB albedo ``color`` :math:`(3,)` (other fields from ``options``)."""
+        c = np.asarray(color, dtype=np.float64).reshape(3)
+        return cls(kind="flat", colors=np.stack([c, c, np.zeros(3)]), **options)
+
     def __post_init__(self) -> None:
         if self.kind not in TEXTURE_KINDS:
             raise ValueError(f"kind: expected one of {TEXTURE_KINDS}, got {self.kind!r}")

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import torch
 
+from data_gen import Camera
 from stereonet.active import demo
 from stereonet.active.datagen_bridge import datagen_active_pair
 from stereonet.active.icp import align_scans
 from stereonet.active.render import render_range_scan
-from stereonet.active.scene import PinholeCamera
 from stereonet.active.scenes import make_scene
 from stereonet.active.structured_light import random_dot_pattern
 from stereonet.checks import StereoInputError
@@ -120,7 +120,7 @@ def bench_align(seeds: list[int]) -> tuple[list[dict], str]:
                              "init_trans": max(x["trans_err"] for x in m["init_errors"]), "seconds": r["seconds"]})
     # no overlap: two narrow scans from one spot looking 60 degrees apart (disjoint parts of the room)
     scene = make_scene("textured", 0)
-    cams = [PinholeCamera.create(200.0, 80, 60, target=(x, 0.0, 2.5)) for x in (-1.5, 1.5)]
+    cams = [Camera.pinhole(200.0, 80, 60, target=(x, 0.0, 2.5)) for x in (-1.5, 1.5)]
     scans = [render_range_scan(scene, c, seed=i, max_range=4.0) for i, c in enumerate(cams)]
     from stereonet.active.icp import relative_pose
 

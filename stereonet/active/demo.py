@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from data_gen import Camera
 from stereonet.active.icp import (
     align_scans,
     merge_scans,
@@ -31,8 +32,7 @@ from stereonet.active.icp import (
     rotation_matrix,
 )
 from stereonet.active.laser import laser_scan
-from stereonet.active.render import render_range_scan
-from stereonet.active.scene import PinholeCamera
+from stereonet.active.render import render_captures, render_range_scan
 from stereonet.active.scenes import make_rig, make_scene
 from stereonet.active.structured_light import (
     coded_light_scan,
@@ -82,7 +82,7 @@ def _write_json(path: Path, data: dict) -> None:
     atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
-def _cloud(depth, valid, camera: PinholeCamera, image: torch.Tensor):
+def _cloud(depth, valid, camera: Camera, image: torch.Tensor):
     """Camera-frame points and uint8 colours of valid depth pixels."""
     d = depth.reshape(camera.height, camera.width)
     v = valid.reshape(camera.height, camera.width)
@@ -166,7 +166,7 @@ def run_laser(out: Path, seed: int = 0, width: int = 320, height: int = 240, ang
     viz = _viz()
     out.mkdir(parents=True, exist_ok=True)
     scene = make_scene(scene_kind, seed)
-    cam = PinholeCamera.create(300.0 * width / 320, width, height)
+    cam = Camera.pinhole(300.0 * width / 320, width, height)
     origin = (0.5, -0.05, 0.0)
     # sheet angles covering the camera's view between 1 and 3.5 m
     t0 = time.perf_counter()
@@ -188,14 +188,14 @@ def run_laser(out: Path, seed: int = 0, width: int = 320, height: int = 240, ang
 
 
 def orbit_cameras(count: int = 4, spread_deg: float = 40.0, radius: float = 2.2, width: int = 200,
-                  height: int = 150, focal: float = 200.0) -> list[PinholeCamera]:
+                  height: int = 150, focal: float = 200.0) -> list[Camera]:
     """``count`` cameras on an arc of ``spread_deg`` around the scene centre, all looking at it."""
     centre = torch.tensor([0.0, 0.1, 2.2], dtype=torch.float64)
     cams = []
     for yaw in torch.linspace(-spread_deg / 2, spread_deg / 2, count).tolist():
         a = math.radians(yaw)
         eye = centre + radius * torch.tensor([math.sin(a), -0.15, -math.cos(a)], dtype=torch.float64)
-        cams.append(PinholeCamera.create(focal, width, height, eye=eye.tolist(), target=centre.tolist()))
+        cams.append(Camera.pinhole(focal, width, height, eye=eye.tolist(), target=centre.tolist()))
     return cams
 
 
@@ -264,16 +264,10 @@ def run_align(out: Path, seed: int = 0, scans: int = 4, noise_std: float = 0.002
         pts, col = merge_scans([s.points for s in data], [s.colors for s in data], init_R, init_t, voxel=0.005)
         write_ply(out / "merged_initial_guess.ply", pts, col)
         viz = _viz()
-        views = [render_view_image(scene, c) for c in cams]
+        views = [render_captures(scene, c).images[0] for c in cams]
         viz.save_png(out / "scan_views.png", viz.panel(views, [f"scan {i}" for i in range(scans)]))
     _write_json(out / "metrics.json", metrics)
     return metrics
-
-
-def render_view_image(scene, camera: PinholeCamera) -> torch.Tensor:
-    from stereonet.active.render import render_view
-
-    return render_view(scene, camera).image[0]
 
 
 # ------------------------------------------------------------------------------------------ CLI

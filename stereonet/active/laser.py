@@ -5,8 +5,9 @@ Pipeline (:func:`laser_scan`):
 
 1. :func:`sweep_planes` — the laser sits at ``origin`` and turns about ``axis``; at angle ``theta`` its sheet
    contains the axis and the direction ``cos(theta) forward + sin(theta) side``.
-2. :func:`render_stripe_images` — the camera's view of each sheet: irradiance
-   ``power * exp(-angle_to_sheet^2 / 2 sigma^2) * Lambert * visible-from-laser`` on top of ambient light.
+2. :func:`render_stripe_images` — the camera's view of each sheet, rendered through data_gen: the laser is an
+   emitter (:func:`laser_light`) of irradiance ``power * exp(-angle_to_sheet^2 / 2 sigma^2) * Lambert *
+   visible-from-laser`` on top of ambient light, one state per sheet angle.
 3. :func:`stripe_peaks` — per scanline, the brightest column of the laser-on minus laser-off image, refined to
    sub-pixel by a 3-point Gaussian fit (exact for a Gaussian profile). Rows with no stripe, a saturated peak,
    a peak at the border or a second comparable peak (ambiguous) are invalid.
@@ -26,9 +27,10 @@ from dataclasses import dataclass
 
 import torch
 
-from stereonet.active.render import shade
-from stereonet.active.scene import PinholeCamera, Scene, raycast, visible_from
-from stereonet.active.triangulate import plane_to_camera, ray_plane_depth
+from data_gen import Camera, Scene, raycast, visible_from_point
+from data_gen.render import LightsFn
+from stereonet.active.render import render_captures
+from stereonet.active.triangulate import depth_to_points, plane_to_camera, ray_plane_depth
 from stereonet.checks import StereoInputError, check_image
 
 log = logging.getLogger(__name__)
@@ -69,38 +71,48 @@ class StripeImages:
     hit: torch.Tensor
 
 
-def render_stripe_images(scene: Scene, camera: PinholeCamera, origin: Sequence[float], normals: torch.Tensor,
+def laser_light(scene: Scene, origin: Sequence[float], normals: torch.Tensor, offsets: torch.Tensor,
+                power: float, sigma: float) -> LightsFn:
+    """The laser as a data_gen emitter with one state per sheet (world planes ``normals`` :math:`(A, 3)`,
+    ``offsets`` :math:`(A,)` through ``origin``): irradiance :math:`(N, A)` at surface points
+    ``power * exp(-s^2 / 2 sigma^2) * max(0, n . l) * visible``, where ``s`` is the sine of the angle between the
+    sheet and the ray from the laser (``sigma``: the sheet's angular half-thickness, radians) and ``visible``
+    the shadow test :func:`data_gen.visible_from_point`."""
+    src = torch.as_tensor(origin, dtype=torch.float64)
+    sheets_n, sheets_c = normals.to(torch.float64), offsets.to(torch.float64)
+
+    def lights(points: torch.Tensor, nrm: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        to_src = src.to(points.dtype) - points
+        dist = to_src.norm(dim=-1).clamp_min(1e-12)
+        lambert = ((nrm * to_src).sum(-1) / dist).clamp_min(0)
+        lit = lambert * visible_from_point(scene, src, points) * (ids >= 0)
+        ang = (points @ sheets_n.T.to(points.dtype) - sheets_c.to(points.dtype)) / dist[:, None]  # NxA
+        return power * torch.exp(-0.5 * (ang / sigma) ** 2) * lit[:, None]
+
+    return lights
+
+
+def render_stripe_images(scene: Scene, camera: Camera, origin: Sequence[float], normals: torch.Tensor,
                          offsets: torch.Tensor, power: float = 1.5, sigma_deg: float | None = None,
                          ambient: float = 0.15, noise_std: float = 0.005, seed: int = 0) -> StripeImages:
-    """Render the camera's view of each laser sheet (normals :math:`(A, 3)`, offsets :math:`(A,)`, world frame).
+    """Render the camera's grey view of each laser sheet (normals :math:`(A, 3)`, offsets :math:`(A,)`, world
+    frame) and of the scene with the laser off, under ``ambient`` light alone.
 
     The camera rays and the shadow test toward the laser do not depend on the sheet angle, so they are cast
-    once; each sheet only changes the Gaussian profile across it (``sigma_deg`` = angular half-thickness as
-    seen from the laser; default 0.8 of the camera's pixel angle, so the stripe spans ~2-3 pixels like a
-    laser line focused for its camera — a much thinner line would fall between pixel centres).
+    once (:func:`~stereonet.active.render.render_captures`); each sheet only changes the Gaussian profile across
+    it (``sigma_deg`` = angular half-thickness as seen from the laser; default 0.8 of the camera's pixel angle,
+    so the stripe spans ~2-3 pixels like a laser line focused for its camera — a much thinner line would fall
+    between pixel centres).
     """
-    src = torch.as_tensor(origin, dtype=torch.float64)
-    o, d = camera.rays(camera.pixel_grid(1)[:, :, 0])
-    hits = raycast(scene, o, d)
-    vis = visible_from(scene, hits.points, hits.normals, src) & hits.hit
-    to_src = src - hits.points
-    dist = to_src.norm(dim=-1).clamp_min(1e-12)
-    lambert = ((hits.normals * to_src).sum(-1) / dist).clamp_min(0)
-    base = shade(scene, hits, ambient, None, 0.0, ()).mean(-1)  # HxW grey radiance without the laser
-    albedo = hits.albedo.mean(-1)
-    g = torch.Generator().manual_seed(int(seed))
-
-    def sensor(x: torch.Tensor) -> torch.Tensor:
-        return (x + noise_std * torch.randn(x.shape, generator=g, dtype=x.dtype)).clamp(0, 1).float()
-
     sigma = 0.8 / float(camera.K[0, 0]) if sigma_deg is None else math.radians(sigma_deg)
-    on = []
-    for n, c in zip(normals.to(torch.float64), offsets.to(torch.float64)):
-        ang = ((hits.points @ n) - c) / dist  # sine of the angle between the sheet and the laser->point ray
-        irr = power * torch.exp(-0.5 * (ang / sigma) ** 2) * lambert * vis
-        on.append(sensor(base + albedo * irr))
-    depth = torch.where(hits.hit, hits.t, torch.zeros_like(hits.t))
-    return StripeImages(torch.stack(on)[:, None], sensor(base)[None, None], depth, hits.hit)
+    sheets = laser_light(scene, origin, normals, offsets, power, sigma)
+
+    def off_then_sheets(points: torch.Tensor, nrm: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        return torch.cat([torch.zeros_like(points[:, :1]), sheets(points, nrm, ids)], dim=1)  # state 0: laser off
+
+    cap = render_captures(scene, camera, off_then_sheets, ambient=ambient, light=0.0, noise_std=noise_std,
+                          seed=seed, grey=True)
+    return StripeImages(cap.images[1:], cap.images[:1], cap.view.depth, cap.view.hit)
 
 
 def stripe_peaks(image: torch.Tensor, min_peak: float = 0.05, saturation: float = 0.99,
@@ -184,7 +196,7 @@ class LaserScan:
                 "density": 100.0 * float(m.sum()) / max(1, int((self.depth_map_gt > 0).sum()))}
 
 
-def triangulate_stripes(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeCamera,
+def triangulate_stripes(columns: torch.Tensor, valid: torch.Tensor, camera: Camera,
                         normals_world: torch.Tensor, offsets_world: torch.Tensor,
                         min_angle_deg: float = 0.5) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Triangulate stripe columns :math:`(A, 1, H)` of ``A`` laser sheets (world planes :math:`(A, 3)`, :math:`(A,)`).
@@ -202,8 +214,7 @@ def triangulate_stripes(columns: torch.Tensor, valid: torch.Tensor, camera: Pinh
                     through.nonzero().flatten().tolist())
     depth, ok = ray_plane_depth(camera.K, uv, n_c[:, None, :].expand(a, h, 3), c_c[:, None].expand(a, h),
                                 min_angle_deg=min_angle_deg, degenerate="invalid")
-    uv1 = torch.cat([uv, torch.ones_like(uv[..., :1])], dim=-1)
-    pts = (uv1 @ torch.linalg.inv(camera.K).T) * depth[..., None]
+    pts = depth_to_points(depth, torch.ones_like(ok), camera.K, uv).view(a, h, 3)
     return pts, uv, ok & valid[:, 0]
 
 
@@ -230,7 +241,7 @@ def reject_stripe_breaks(depth: torch.Tensor, valid: torch.Tensor, max_relative_
     return keep
 
 
-def laser_scan(scene: Scene, camera: PinholeCamera, origin: Sequence[float], angles_deg: Sequence[float],
+def laser_scan(scene: Scene, camera: Camera, origin: Sequence[float], angles_deg: Sequence[float],
                axis: Sequence[float] = (0.0, 1.0, 0.0), forward: Sequence[float] = (0.0, 0.0, 1.0),
                min_angle_deg: float = 0.5, seed: int = 0, **render_options) -> LaserScan:
     """Sweep a laser sheet over ``scene`` and build ``camera``'s range image (see module doc)."""
@@ -241,10 +252,9 @@ def laser_scan(scene: Scene, camera: PinholeCamera, origin: Sequence[float], ang
     ok = reject_stripe_breaks(pts[..., 2], ok)
     sheet = torch.arange(ok.shape[0])[:, None].expand_as(ok)[ok]
     pts, uv = pts[ok], uv[ok]  # Nx3, Nx2
-    # GT along the same sub-pixel rays (exact evaluation of the triangulation)
-    o, d = camera.rays(uv)
-    gt = raycast(scene, o, d, shade=False)
-    gt_depth = torch.where(gt.hit, gt.t, torch.zeros_like(gt.t))
+    # GT along the same sub-pixel rays (exact evaluation of the triangulation); ray parameter = depth
+    gt = raycast(scene, torch.as_tensor(camera.center), camera.ray_dirs(uv[:, 0], uv[:, 1]))
+    gt_depth = torch.where(gt.ids >= 0, gt.t, torch.zeros_like(gt.t))
     h, w = camera.height, camera.width
     range_image = torch.zeros(h, w, dtype=torch.float64)
     valid = torch.zeros(h, w, dtype=torch.bool)

@@ -1,105 +1,96 @@
-"""Render what a camera sees of a :class:`~stereonet.active.scene.Scene` lit by ambient light, a soft
-directional light and any number of *emitters* (a pattern projector, a laser sheet).
+"""What the active sensors' cameras record, rendered through data_gen.
 
-An emitter is any callable ``emitter(scene, points, normals) -> irradiance`` giving the light it adds at world
-surface points :math:`(N, 3)` with normals :math:`(N, 3)` as :math:`(N,)` (grey) or :math:`(N, 3)` (coloured);
-it is responsible for its own shadow test (:func:`~stereonet.active.scene.visible_from`).
-The camera records ``albedo * (ambient + directional + sum of emitters)``, plus Gaussian noise, clipped to
-[0, 1] — so bright emitters on bright surfaces saturate, as real sensors do.
+A camera (a :class:`data_gen.Camera`) sees a data_gen :class:`~data_gen.Scene` lit by the scene's ambient and
+directional light (irradiance ``ambient + light_strength * max(0, n . l)``) plus an optional *emitter*: a
+pattern projector (:func:`~stereonet.active.structured_light.projector_light`) or a laser sheet
+(:func:`~stereonet.active.laser.laser_light`). An emitter is a data_gen light function
+``lights(points (N, 3), normals (N, 3), ids (N,)) -> (N, P)``: the irradiance it adds at world surface points
+in each of its P states (the patterns of a sequence, the angles of a sweep), its own shadow test included
+(:func:`data_gen.visible_from`, :func:`data_gen.visible_from_point`). :func:`data_gen.render_sequence` casts
+the camera rays once and shades every state: the camera records ``albedo * irradiance`` (Lambertian, no
+highlights) clipped to [0, 1] per channel — bright emitters on bright surfaces saturate, as real sensors do —
+and :func:`render_captures` adds Gaussian sensor noise.
+
+Geometry is rendered in float64; images are float32 in [0, 1].
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
-from stereonet.active.scene import Hits, PinholeCamera, Scene, raycast
-
-Emitter = Callable[[Scene, torch.Tensor, torch.Tensor], torch.Tensor]
+from data_gen import Camera, Scene, render_sequence
+from data_gen.render import LightsFn
+from stereonet.active.icp import RangeScan
+from stereonet.active.triangulate import depth_to_points
 
 
 @dataclass
 class View:
-    """A rendered view. ``image`` :math:`(1, 3, H, W)` float32 in [0, 1]; ``depth`` :math:`(H, W)` float64 camera z
-    (0 where nothing is hit); ``hit`` :math:`(H, W)` bool; ``points``/``normals``/``albedo`` :math:`(H, W, 3)` of
-    the pixel-centre rays in world coordinates."""
+    """Pixel-centre geometry of a rendered view: ``image`` :math:`(1, C, H, W)` float32 (the first capture),
+    ``depth`` :math:`(H, W)` float64 camera z (0 where nothing is hit), ``hit`` :math:`(H, W)` bool,
+    ``points`` / ``normals`` :math:`(H, W, 3)` in world coordinates."""
 
     image: torch.Tensor
     depth: torch.Tensor
     hit: torch.Tensor
     points: torch.Tensor
     normals: torch.Tensor
-    albedo: torch.Tensor
 
 
-def shade(scene: Scene, hits: Hits, ambient: float, light_dir: Sequence[float] | None, light: float,
-          emitters: Sequence[Emitter]) -> torch.Tensor:
-    """Radiance :math:`(*, 3)` of hits (float64, unclipped) under the lighting model of this module."""
-    lead = hits.t.shape
-    pts, nrm = hits.points.reshape(-1, 3), hits.normals.reshape(-1, 3)
-    irr = torch.full((pts.shape[0], 3), float(ambient), dtype=torch.float64)
-    if light_dir is not None and light > 0:
-        ldir = torch.as_tensor(light_dir, dtype=torch.float64)
-        ldir = ldir / ldir.norm()
-        irr = irr + light * (nrm @ -ldir).clamp_min(0)[:, None]
-    for emit in emitters:
-        e = emit(scene, pts, nrm)
-        irr = irr + (e[:, None] if e.dim() == 1 else e)
-    rad = hits.albedo.reshape(-1, 3) * irr
-    rad = torch.where(hits.hit.reshape(-1, 1), rad, torch.zeros_like(rad))
-    return rad.reshape(*lead, 3)
+@dataclass
+class Capture:
+    """Camera images of every emitter state, ``images`` :math:`(P, C, H, W)` float32, and the ``view``."""
+
+    images: torch.Tensor
+    view: View
 
 
-def render_view(scene: Scene, camera: PinholeCamera, emitters: Sequence[Emitter] = (), ambient: float = 0.35,
-                light_dir: Sequence[float] | None = (0.3, 0.6, 1.0), light: float = 0.45, noise_std: float = 0.0,
-                seed: int = 0, samples: int = 1) -> View:
-    """Render ``camera``'s view of ``scene``.
+def render_captures(scene: Scene, camera: Camera, lights: LightsFn | None = None, ambient: float | None = None,
+                    light: float | None = None, samples: int = 1, noise_std: float = 0.0, seed: int = 0,
+                    grey: bool = False) -> Capture:
+    """``camera``'s images of ``scene`` in each state of the emitter ``lights`` (one image without an emitter).
 
     Args:
-        emitters: extra light sources (see module doc), e.g. a pattern projector or a laser sheet.
-        ambient, light_dir, light: ambient level and a directional light (direction of travel, world frame).
-        noise_std: standard deviation of additive Gaussian sensor noise (seeded by ``seed``).
-        samples: ``samples x samples`` stratified rays per pixel, averaged (anti-aliasing); geometry outputs
-            (``depth``, ``points``...) always come from the pixel-centre ray.
+        ambient, light: the scene's ambient level and directional light strength for these captures (None keeps
+            the scene's own).
+        samples: data_gen's adaptive anti-aliasing: ``samples x samples`` rays on object edges and normal
+            creases; the geometry comes from the pixel-centre rays.
+        noise_std: standard deviation of additive Gaussian sensor noise (seeded by ``seed``), after clipping
+            the radiance to [0, 1]; the images are clipped again.
+        grey: a monochrome sensor: ``C = 1``, the mean of the colour channels (noise added to it).
     """
-    uv = camera.pixel_grid(samples)  # HxWxSx2
-    o, d = camera.rays(uv)
-    hits = raycast(scene, o, d)
-    rad = shade(scene, hits, ambient, light_dir, light, emitters).mean(dim=2)  # HxWx3
-    img = rad.permute(2, 0, 1)[None]  # 1x3xHxW
+    lit = replace(scene, ambient=scene.ambient if ambient is None else float(ambient),
+                  light_strength=scene.light_strength if light is None else float(light))
+    out = render_sequence(lit, camera, lights, supersample=samples, specular=False, dtype=torch.float64)
+    images = out["images"].mean(1, keepdim=True) if grey else out["images"]
     if noise_std > 0:
         g = torch.Generator().manual_seed(int(seed))
-        img = img + noise_std * torch.randn(img.shape, generator=g, dtype=img.dtype)
-    img = img.clamp(0, 1).to(torch.float32)
-    centre = hits if samples == 1 else raycast(scene, *camera.rays(camera.pixel_grid(1)))  # HxWx1
-    c = lambda x: x[:, :, 0]
-    depth = torch.where(c(centre.hit), c(centre.t), torch.zeros_like(c(centre.t)))  # ray dir has z = 1
-    return View(img, depth, c(centre.hit), c(centre.points), c(centre.normals), c(centre.albedo))
+        images = images + noise_std * torch.randn(images.shape, generator=g, dtype=images.dtype)
+    images = images.clamp(0, 1).float()
+    w, h = camera.size
+    hit = (out["ids"] >= 0) & torch.isfinite(out["depth"])
+    depth = torch.where(hit, out["depth"], torch.zeros_like(out["depth"]))
+    view = View(images[:1], depth, hit, out["points"].view(h, w, 3), out["normals"].view(h, w, 3))
+    return Capture(images, view)
 
 
-def render_range_scan(scene: Scene, camera: PinholeCamera, noise_std: float = 0.002, stride: int = 1,
-                      max_range: float | None = None, seed: int = 0):
+def render_range_scan(scene: Scene, camera: Camera, noise_std: float = 0.002, stride: int = 1,
+                      max_range: float | None = None, seed: int = 0) -> RangeScan:
     """A range scanner's output at ``camera``: camera-frame points :math:`(N, 3)` of every ``stride``-th pixel
     hit (depth noise ``noise_std`` along the ray, seeded; beyond ``max_range`` dropped) with uint8 colours
-    (shaded albedo), as a :class:`~stereonet.active.icp.RangeScan` carrying the true pose."""
-    from stereonet.active.icp import RangeScan
-
-    view = render_view(scene, camera)
+    (the scene's shaded albedo), as a :class:`~stereonet.active.icp.RangeScan` carrying the true pose."""
+    view = render_captures(scene, camera).view
     sl = (slice(None, None, stride), slice(None, None, stride))
     depth, hit = view.depth[sl], view.hit[sl]
     if max_range is not None:
         hit = hit & (depth <= max_range)
     g = torch.Generator().manual_seed(int(seed))
-    noisy = depth * (1 + noise_std * torch.randn(depth.shape, generator=g, dtype=depth.dtype) / depth.clamp_min(1e-9))
-    v, u = torch.meshgrid(torch.arange(0, camera.height, stride, dtype=torch.float64),
-                          torch.arange(0, camera.width, stride, dtype=torch.float64), indexing="ij")
-    uv1 = torch.stack([u, v, torch.ones_like(u)], dim=-1)
-    pts = (uv1 @ torch.linalg.inv(camera.K).T) * noisy[..., None]  # HxWx3, z = noisy depth
+    noisy = depth + noise_std * torch.randn(depth.shape, generator=g, dtype=depth.dtype)
+    K = torch.as_tensor(camera.K).clone()
+    K[:2] /= stride  # pixel (u, v) of the strided grid is pixel (s u, s v) of the camera
     colors = (view.image[0].permute(1, 2, 0)[sl] * 255 + 0.5).to(torch.uint8)
     depth_map = torch.where(hit, noisy, torch.zeros_like(noisy))
-    K = camera.K.clone()
-    K[:2] /= stride  # pixel (u, v) of the strided grid is pixel (s u, s v) of the camera
-    return RangeScan(pts[hit], colors[hit], camera.R.clone(), camera.t.clone(), view.image[..., ::stride, ::stride],
-                     depth_map, K)
+    return RangeScan(depth_to_points(noisy, hit, K), colors[hit], torch.as_tensor(camera.R).clone(),
+                     torch.as_tensor(camera.t).clone(), view.image[..., ::stride, ::stride], depth_map, K)

@@ -1,8 +1,9 @@
 """Structured light: a projector casts known patterns so that correspondence no longer depends on texture.
 
-Two uses, one projector model (a projector is an inverse camera: the light reaching a surface point is the
-pattern sampled where the point projects into the projector, times visibility from the projector — a
-shadow ray — times the Lambertian term):
+Two uses, one projector model (a projector is an inverse camera — a :class:`data_gen.Camera` used the other
+way round: the light reaching a surface point is the pattern sampled where the point projects into the
+projector, times visibility from the projector — a shadow ray — times the Lambertian term;
+:func:`projector_light`, rendered through data_gen by :func:`~stereonet.active.render.render_captures`):
 
 * **Active stereo** — a random dot pattern (like an infrared depth sensor) gives textureless or repetitive
   surfaces a unique texture; any passive matcher then runs on the two camera images unchanged
@@ -21,14 +22,14 @@ back invalid, never with a depth.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
-from stereonet.active.render import View, shade
-from stereonet.active.scene import PinholeCamera, Scene, raycast, visible_from
+from data_gen import Camera, Scene, visible_from
+from data_gen.render import LightsFn
+from stereonet.active.render import Capture, View, render_captures
 from stereonet.active.triangulate import projector_column_planes, ray_plane_depth, reject_depth_edges
 from stereonet.checks import StereoInputError, check_shape, check_tensor
 
@@ -204,58 +205,46 @@ def unwrap_phase(phase: torch.Tensor, phase_valid: torch.Tensor, unit_index: tor
 # ----------------------------------------------------------------------------------------------- rendering
 
 
-@dataclass
-class Capture:
-    """Camera images of a pattern sequence: ``images`` :math:`(P, 3, H, W)` float32 and the pixel-centre geometry
-    of the camera ``view`` (its ``image`` is the first capture)."""
+def projector_light(scene: Scene, projector: Camera, patterns: torch.Tensor, power: float = 0.8) -> LightsFn:
+    """The projector as a data_gen emitter with one state per pattern of ``patterns`` :math:`(P, H_p, W_p)`.
 
-    images: torch.Tensor
-    view: View
-
-
-def capture_patterns(scene: Scene, camera: PinholeCamera, projector: PinholeCamera, patterns: torch.Tensor,
-                     power: float = 0.8, ambient: float = 0.2, light_dir: Sequence[float] | None = (0.3, 0.6, 1.0),
-                     light: float = 0.25, noise_std: float = 0.005, seed: int = 0, samples: int = 1) -> Capture:
-    """Render ``camera``'s images of ``scene`` while ``projector`` shows each of ``patterns`` :math:`(P, H_p, W_p)`.
-
-    Projector irradiance at a surface point ``X``: ``power * pattern(project(X)) * max(0, n . l) * visible``,
-    zero outside the projector's frustum. Camera rays, projections and shadow rays are computed once for the
-    whole sequence. ``samples x samples`` rays per pixel are averaged (anti-aliasing); noise is per capture.
+    Irradiance :math:`(N, P)` at surface points ``X``: ``power * pattern(projector.project(X)) * max(0, n . l)
+    * visible``, sampled bilinearly (pixel centres at integers), zero outside the projector's image; ``visible``
+    is :func:`data_gen.visible_from` from the projector (its frustum and the shadows of the scene).
     """
     check_shape(patterns, ["P", "Hp", "Wp"], "patterns")
-    if patterns.shape[1] != projector.height or patterns.shape[2] != projector.width:
-        raise StereoInputError(f"patterns: expected (P, {projector.height}, {projector.width}) for this projector, "
-                               f"got {tuple(patterns.shape)}")
-    uv = camera.pixel_grid(samples)  # HxWxSx2
-    o, d = camera.rays(uv)
-    hits = raycast(scene, o, d)
-    src = projector.center
-    to_src = src - hits.points
-    lambert = ((hits.normals * to_src).sum(-1) / to_src.norm(dim=-1).clamp_min(1e-12)).clamp_min(0)
-    uvp, zp = projector.project(hits.points)
-    gain = power * lambert * visible_from(scene, hits.points, hits.normals, src) * (zp > 0) * hits.hit
-    # normalised projector coordinates for grid_sample (align_corners=True: pixel centres at -1 ... 1)
-    grid = torch.stack([2 * uvp[..., 0] / max(projector.width - 1, 1) - 1,
-                        2 * uvp[..., 1] / max(projector.height - 1, 1) - 1], dim=-1)
-    h, w, s = hits.t.shape
-    grid = grid.reshape(1, h, w * s, 2).float()  # 1xHx(WS)x2
-    g = torch.Generator().manual_seed(int(seed))
-    images = []
-    for pat in patterns:
-        val = F.grid_sample(pat[None, None].float(), grid, mode="bilinear", padding_mode="zeros",
-                            align_corners=True)[0, 0].reshape(h, w, s).to(torch.float64)
-        irr = gain * val
-        rad = shade(scene, hits, ambient, light_dir, light, [lambda *_, e=irr: e.reshape(-1)]).mean(2)  # HxWx3
-        img = rad.permute(2, 0, 1)
-        if noise_std > 0:
-            img = img + noise_std * torch.randn(img.shape, generator=g, dtype=img.dtype)
-        images.append(img.clamp(0, 1).float())
-    images = torch.stack(images)
-    centre = hits if samples == 1 else raycast(scene, *camera.rays(camera.pixel_grid(1)))  # HxWx1
-    sel = lambda x: x[:, :, 0]
-    depth = torch.where(centre.hit, centre.t, torch.zeros_like(centre.t))
-    view = View(images[:1], sel(depth), sel(centre.hit), sel(centre.points), sel(centre.normals), sel(centre.albedo))
-    return Capture(images, view)
+    w, h = projector.size
+    if tuple(patterns.shape[1:]) != (h, w):
+        raise StereoInputError(f"patterns: expected (P, {h}, {w}) for this projector, got {tuple(patterns.shape)}")
+    pats = patterns[None].float()  # 1xPxHpxWp
+    centre = torch.as_tensor(projector.center)
+
+    def lights(points: torch.Tensor, normals: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        pix, z = projector.project(points)
+        # normalised projector coordinates for grid_sample (align_corners=True: pixel centres at -1 ... 1)
+        grid = torch.stack([2 * pix[:, 0] / max(w - 1, 1) - 1, 2 * pix[:, 1] / max(h - 1, 1) - 1], -1)
+        val = F.grid_sample(pats, grid.view(1, 1, -1, 2).float(), mode="bilinear", padding_mode="zeros",
+                            align_corners=True)[0, :, 0].T.to(points.dtype)  # NxP
+        to_p = centre.to(points.dtype) - points
+        lam = ((normals * to_p).sum(-1) / to_p.norm(dim=-1).clamp_min(1e-12)).clamp_min(0)
+        vis = visible_from(scene, projector, points, projected=(pix, z))
+        return power * val * (lam * vis * (ids >= 0))[:, None]
+
+    return lights
+
+
+def capture_patterns(scene: Scene, camera: Camera, projector: Camera, patterns: torch.Tensor,
+                     power: float = 0.8, ambient: float | None = 0.2, light: float | None = 0.25,
+                     noise_std: float = 0.005, seed: int = 0, samples: int = 1) -> Capture:
+    """Render ``camera``'s images of ``scene`` while ``projector`` shows each of ``patterns`` :math:`(P, H_p, W_p)`.
+
+    The projector is :func:`projector_light`; ``ambient`` and ``light`` set the scene's ambient level and
+    directional light strength (None keeps the scene's own). Camera rays, projections and shadow rays are
+    computed once for the whole sequence; ``samples x samples`` rays anti-alias object edges; noise is per
+    capture (see :func:`~stereonet.active.render.render_captures`).
+    """
+    return render_captures(scene, camera, projector_light(scene, projector, patterns, power), ambient, light,
+                           samples, noise_std, seed)
 
 
 def to_grey(images: torch.Tensor) -> torch.Tensor:
@@ -266,7 +255,7 @@ def to_grey(images: torch.Tensor) -> torch.Tensor:
 # ----------------------------------------------------------------------------------------------- depth
 
 
-def projector_depth(columns: torch.Tensor, valid: torch.Tensor, camera: PinholeCamera, projector: PinholeCamera,
+def projector_depth(columns: torch.Tensor, valid: torch.Tensor, camera: Camera, projector: Camera,
                     min_angle_deg: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
     """Depth of every camera pixel from its decoded projector column (the projector as the second camera).
 
@@ -323,7 +312,7 @@ class CodedScan:
                 "wrong_code": 100.0 * float((ec > self.column_tolerance).float().mean()) if e.numel() else math.nan}
 
 
-def coded_light_scan(scene: Scene, camera: PinholeCamera, projector: PinholeCamera, method: str = "gray+phase",
+def coded_light_scan(scene: Scene, camera: Camera, projector: Camera, method: str = "gray+phase",
                      period: int = 16, steps: int = 4, unit: int = 1, min_contrast: float = 0.05,
                      max_relative_jump: float | None = None, **capture_options) -> CodedScan:
     """Project a coded sequence, decode every camera pixel's projector column, triangulate.
@@ -394,9 +383,7 @@ def render_active_pair(scene: Scene, rig, pattern: torch.Tensor | None, seed: in
     valid = view.hit & (depth > 0)
     disp = torch.where(valid, rig.focal * rig.baseline / torch.where(valid, depth, torch.ones_like(depth)),
                        torch.zeros_like(depth))
-    uv_r, z_r = rig.right.project(view.points)
-    seen = (visible_from(scene, view.points, view.normals, rig.right.center) & (z_r > 0)
-            & (uv_r[..., 0] >= 0) & (uv_r[..., 0] <= rig.right.width - 1))
+    seen = visible_from(scene, rig.right, view.points.reshape(-1, 3)).view(depth.shape)  # frustum + occluders
     f32 = lambda x: x[None, None].float()
     return ActivePair(capl.images, capr.images, f32(disp), valid[None, None], (~seen | ~valid)[None, None], depth)
 

@@ -11,20 +11,20 @@ from __future__ import annotations
 
 import torch
 
-from stereonet.active.scene import PinholeCamera
+from data_gen import Camera
 from stereonet.checks import StereoInputError, check_finite, check_shape
 
 
 def plane_to_camera(normal_world: torch.Tensor, offset_world: torch.Tensor,
-                    camera: PinholeCamera) -> tuple[torch.Tensor, torch.Tensor]:
+                    camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
     """World planes ``n . X_w = c`` (normals :math:`(*, 3)`, offsets :math:`(*)`) -> the same planes in
     ``camera``'s frame (``X_c = R X_w + t``): ``n_c = R n``, ``c_c = c + n_c . t``."""
-    n_c = normal_world.to(torch.float64) @ camera.R.T
-    return n_c, offset_world.to(torch.float64) + n_c @ camera.t
+    n_c = normal_world.to(torch.float64) @ torch.as_tensor(camera.R).T
+    return n_c, offset_world.to(torch.float64) + n_c @ torch.as_tensor(camera.t)
 
 
-def projector_column_planes(u_proj: torch.Tensor, camera: PinholeCamera,
-                            projector: PinholeCamera) -> tuple[torch.Tensor, torch.Tensor]:
+def projector_column_planes(u_proj: torch.Tensor, camera: Camera,
+                            projector: Camera) -> tuple[torch.Tensor, torch.Tensor]:
     """Light planes (camera frame) of projector columns ``u_proj`` :math:`(*)` (sub-pixel allowed).
 
     Column ``u`` of the projector image is the image line ``l = (1, 0, -u)``; its back-projection is the plane
@@ -32,10 +32,10 @@ def projector_column_planes(u_proj: torch.Tensor, camera: PinholeCamera,
     camera) the plane in camera coordinates is ``(R^T n_p) . X_c = -n_p . t``.
     Returns normals :math:`(*, 3)` and offsets :math:`(*)`.
     """
-    R, t = projector.relative_to(camera)
+    R, t = (torch.as_tensor(a) for a in projector.relative_to(camera))
     u = u_proj.to(torch.float64)
     line = torch.stack([torch.ones_like(u), torch.zeros_like(u), -u], dim=-1)  # *x3
-    n_p = line @ projector.K  # (K^T l)^T = l^T K
+    n_p = line @ torch.as_tensor(projector.K)  # (K^T l)^T = l^T K
     return n_p @ R, -(n_p @ t)
 
 
@@ -44,7 +44,7 @@ def ray_plane_depth(K: torch.Tensor, uv: torch.Tensor, normals: torch.Tensor, of
     """Depth where the camera rays through pixels ``uv`` meet the planes ``normals . X = offsets`` (camera frame).
 
     Args:
-        K: camera intrinsics :math:`(3, 3)`.
+        K: camera intrinsics :math:`(3, 3)` (a tensor or array, e.g. ``camera.K``).
         uv: pixel coordinates :math:`(*, 2)` (column, row), sub-pixel allowed.
         normals: plane normals :math:`(*, 3)` (any length, broadcast against ``uv``).
         offsets: plane offsets :math:`(*)`.
@@ -60,6 +60,7 @@ def ray_plane_depth(K: torch.Tensor, uv: torch.Tensor, normals: torch.Tensor, of
     Raises:
         StereoInputError: when a plane passes through the camera centre (every ray lies in it: no depth).
     """
+    K = torch.as_tensor(K)
     check_shape(K, ["3", "3"], "K")
     check_shape(uv, ["*", "2"], "uv")
     check_shape(normals, ["*", "3"], "normals")
@@ -88,14 +89,14 @@ def ray_plane_depth(K: torch.Tensor, uv: torch.Tensor, normals: torch.Tensor, of
 def depth_to_points(depth: torch.Tensor, valid: torch.Tensor, K: torch.Tensor,
                     uv: torch.Tensor | None = None) -> torch.Tensor:
     """Back-project a depth map :math:`(H, W)` (or depths at ``uv`` :math:`(*, 2)`) to camera-frame points
-    :math:`(N, 3)`, keeping the ``valid`` entries in row-major order."""
+    :math:`(N, 3)`, keeping the ``valid`` entries in row-major order; ``K`` :math:`(3, 3)` tensor or array."""
     if uv is None:
         h, w = depth.shape
         v, u = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
                               indexing="ij")
         uv = torch.stack([u, v], dim=-1)
     uv1 = torch.cat([uv.to(torch.float64), torch.ones_like(uv[..., :1], dtype=torch.float64)], dim=-1)
-    rays = uv1 @ torch.linalg.inv(K.to(torch.float64)).T
+    rays = uv1 @ torch.linalg.inv(torch.as_tensor(K, dtype=torch.float64)).T
     pts = rays * depth.to(torch.float64)[..., None]
     return pts[valid]
 

@@ -8,6 +8,10 @@ Distortion is delegated to kornia (:func:`kornia.geometry.calibration.distort_po
 
 Every function works on ``(*, N, 3)`` points / ``(*, N, 2)`` pixels with ``(*, 3, 3)`` matrices and is
 differentiable in all its tensor arguments.
+
+This is the project's one camera model: :class:`data_gen.Camera` (the renderer's cameras, and the cameras and
+projectors of :mod:`stereonet.active`) projects and back-projects exactly like these functions
+(``tests/geometry/test_camera_models.py``); it holds ``K, R, t, dist`` as numpy arrays for the renderer.
 """
 
 from __future__ import annotations

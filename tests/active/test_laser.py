@@ -6,11 +6,12 @@ from __future__ import annotations
 import logging
 import math
 
+import numpy as np
 import pytest
 import torch
 
+from data_gen import Camera, Material, Plane, Scene, Sphere
 from stereonet.active.laser import laser_scan, stripe_peaks, sweep_planes, triangulate_stripes
-from stereonet.active.scene import PinholeCamera, Plane, Scene, Sphere, Texture
 from stereonet.active.triangulate import plane_to_camera, ray_plane_depth
 from stereonet.checks import StereoInputError
 
@@ -66,12 +67,15 @@ def test_sweep_planes_contain_origin_and_axis():
 
 
 def _scene():
-    return Scene([Plane((0.0, 0.0, -1.0), -2.5, Texture("constant", (0.7, 0.7, 0.7))),
-                  Sphere((0.1, 0.0, 1.8), 0.35, Texture("checker", (0.9, 0.8, 0.7), (0.4, 0.4, 0.5), 0.1))])
+    # a wall at z = 2.5 m and a sphere with a checker of 0.1 m cells (one checker period = 16 texels of 12.5 mm)
+    checker = Material(kind="checker", colors=np.array([[0.4, 0.4, 0.5], [0.9, 0.8, 0.7], [0.0, 0.0, 0.0]]),
+                       texel_mm=0.2 / 16, period=16.0)
+    return Scene([Plane((0.0, 0.0, 2.5), (0.0, 0.0, -1.0), material=Material.flat((0.7, 0.7, 0.7))),
+                  Sphere((0.1, 0.0, 1.8), 0.35, material=checker)])
 
 
 def test_laser_scan_matches_gt_depth():
-    cam = PinholeCamera.create(80.0, 80, 60)
+    cam = Camera.pinhole(80.0, 80, 60)
     scan = laser_scan(_scene(), cam, origin=(0.5, 0.0, 0.0), angles_deg=torch.linspace(-35, 5, 50), seed=1)
     e = scan.errors()
     assert e["points"] > 700
@@ -87,7 +91,7 @@ def test_laser_scan_matches_gt_depth():
 
 
 def test_sheet_through_camera_centre_gives_no_depth(caplog):
-    cam = PinholeCamera.create(60.0, 40, 30)
+    cam = Camera.pinhole(60.0, 40, 30)
     scene = _scene()
     # laser at the camera centre: every sheet contains the camera centre (parallel to the camera rays)
     with caplog.at_level(logging.WARNING):
@@ -97,7 +101,7 @@ def test_sheet_through_camera_centre_gives_no_depth(caplog):
 
 
 def test_triangulate_stripes_grazing_sheet_invalid():
-    cam = PinholeCamera.create(60.0, 40, 30)
+    cam = Camera.pinhole(60.0, 40, 30)
     # sheet almost containing the camera rays of column ~20: depth there would be wildly ill-conditioned
     n = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
     c = torch.tensor([1e-4], dtype=torch.float64)

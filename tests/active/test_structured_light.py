@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from stereonet.active.scene import PinholeCamera, Plane, Scene, Sphere, Texture
+from data_gen import Camera, Material, Plane, Scene, Sphere, visible_from_point
 from stereonet.active.scenes import make_rig, make_scene
 from stereonet.active.structured_light import (
     capture_patterns,
@@ -92,13 +92,13 @@ def test_random_dots_deterministic_and_sparse():
 
 
 def _scene():
-    return Scene([Plane((0.0, 0.0, -1.0), -2.37, Texture("constant", (0.6, 0.6, 0.6))),
-                  Sphere((0.05, 0.0, 1.7), 0.3, Texture("constant", (0.5, 0.45, 0.4)))])
+    return Scene([Plane((0.0, 0.0, 2.37), (0.0, 0.0, -1.0), material=Material.flat((0.6, 0.6, 0.6))),
+                  Sphere((0.05, 0.0, 1.7), 0.3, material=Material.flat((0.5, 0.45, 0.4)))])
 
 
 def test_camera_projector_depth_matches_gt():
-    cam = PinholeCamera.create(80.0, 80, 60)
-    proj = PinholeCamera.create(160.0, 160, 120, eye=(0.25, 0.0, 0.0))
+    cam = Camera.pinhole(80.0, 80, 60)
+    proj = Camera.pinhole(160.0, 160, 120, eye=(0.25, 0.0, 0.0))
     scan = coded_light_scan(_scene(), cam, proj, method="gray+phase", period=16)
     e = scan.errors()
     assert e["density"] > 70
@@ -111,10 +111,10 @@ def test_camera_projector_depth_matches_gt():
 
 
 def test_saturated_and_shadowed_pixels_get_no_depth():
-    cam = PinholeCamera.create(80.0, 80, 60)
-    proj = PinholeCamera.create(160.0, 160, 120, eye=(0.25, 0.0, 0.0))
-    bright = Scene([Plane((0.0, 0.0, -1.0), -2.5, Texture("constant", (0.6, 0.6, 0.6))),
-                    Sphere((0.05, 0.0, 1.7), 0.3, Texture("constant", (1.0, 1.0, 1.0)))])
+    cam = Camera.pinhole(80.0, 80, 60)
+    proj = Camera.pinhole(160.0, 160, 120, eye=(0.25, 0.0, 0.0))
+    bright = Scene([Plane((0.0, 0.0, 2.5), (0.0, 0.0, -1.0), material=Material.flat((0.6, 0.6, 0.6))),
+                    Sphere((0.05, 0.0, 1.7), 0.3, material=Material.flat((1.0, 1.0, 1.0)))])
     scan = coded_light_scan(bright, cam, proj, power=2.5)  # the white sphere saturates
     saturated = (to_grey(scan.captures) >= 0.99).any(1)[0]
     assert saturated.sum() > 100
@@ -123,16 +123,14 @@ def test_saturated_and_shadowed_pixels_get_no_depth():
     # projector shadow of the sphere on the wall: no pattern, no depth
     plain = coded_light_scan(_scene(), cam, proj)
     wall = plain.view.hit & (plain.view.depth > 2.3)
-    from stereonet.active.scene import visible_from
-
-    lit = visible_from(_scene(), plain.view.points, plain.view.normals, proj.center)
+    lit = visible_from_point(_scene(), proj.center, plain.view.points.reshape(-1, 3)).view(wall.shape)
     shadow = wall & ~lit
     assert shadow.sum() > 20 and not plain.valid[0, 0][shadow].any()
 
 
 def test_projector_depth_checks_shapes():
-    cam = PinholeCamera.create(80.0, 80, 60)
-    proj = PinholeCamera.create(160.0, 160, 120, eye=(0.25, 0.0, 0.0))
+    cam = Camera.pinhole(80.0, 80, 60)
+    proj = Camera.pinhole(160.0, 160, 120, eye=(0.25, 0.0, 0.0))
     with pytest.raises(StereoInputError, match="columns"):
         projector_depth(torch.zeros(1, 1, 10, 10), torch.ones(1, 1, 10, 10, dtype=torch.bool), cam, proj)
     with pytest.raises(StereoInputError, match="patterns"):
@@ -140,9 +138,9 @@ def test_projector_depth_checks_shapes():
 
 
 def test_capture_is_lambertian_times_pattern():
-    cam = PinholeCamera.create(50.0, 40, 30)
-    proj = PinholeCamera.create(50.0, 40, 30, eye=(0.0, 0.0, 0.0))  # co-located: no shadows, no parallax
-    scene = Scene([Plane((0.0, 0.0, -1.0), -2.0, Texture("constant", (0.5, 0.5, 0.5)))])
+    cam = Camera.pinhole(50.0, 40, 30)
+    proj = Camera.pinhole(50.0, 40, 30, eye=(0.0, 0.0, 0.0))  # co-located: no shadows, no parallax
+    scene = Scene([Plane((0.0, 0.0, 2.0), (0.0, 0.0, -1.0), material=Material.flat((0.5, 0.5, 0.5)))])
     pats = torch.stack([torch.zeros(30, 40), torch.ones(30, 40)])
     cap = capture_patterns(scene, cam, proj, pats, power=0.6, ambient=0.2, light=0.0, noise_std=0.0)
     grey = to_grey(cap.images)[0]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from stereonet.active.scene import PinholeCamera
+from data_gen import Camera
 from stereonet.active.triangulate import (
     plane_to_camera,
     projector_column_planes,
@@ -66,8 +66,8 @@ def test_grazing_rays_are_invalid_and_behind_camera_is_invalid():
 
 
 def test_projector_column_plane_contains_projected_points():
-    cam = PinholeCamera.create(120.0, 64, 48)
-    proj = PinholeCamera.create(200.0, 128, 96, eye=(0.2, -0.05, 0.02), target=(0.0, 0.0, 2.0))
+    cam = Camera.pinhole(120.0, 64, 48)
+    proj = Camera.pinhole(200.0, 128, 96, eye=(0.2, -0.05, 0.02), target=(0.0, 0.0, 2.0))
     g = torch.Generator().manual_seed(0)
     pts = torch.rand(50, 3, generator=g, dtype=torch.float64) * torch.tensor([1.0, 1.0, 1.5]) + torch.tensor([-0.5, -0.5, 1.5])
     uvp, _ = proj.project(pts)
@@ -82,7 +82,7 @@ def test_projector_column_plane_contains_projected_points():
 
 
 def test_plane_to_camera_roundtrip():
-    cam = PinholeCamera.create(100.0, 32, 24, eye=(0.3, 0.1, -0.2), target=(0.0, 0.0, 2.0))
+    cam = Camera.pinhole(100.0, 32, 24, eye=(0.3, 0.1, -0.2), target=(0.0, 0.0, 2.0))
     n_w = torch.tensor([[0.2, 0.1, 1.0]], dtype=torch.float64)
     c_w = torch.tensor([2.5], dtype=torch.float64)
     p_w = torch.tensor([[0.0, 0.0, 2.5]], dtype=torch.float64)  # n_w . p_w = 2.5
