@@ -148,11 +148,10 @@ def shade_lights(scene: Scene, srt: dict[str, torch.Tensor], eye: np.ndarray, sp
     :math:`(N,)`, in the original (unsorted) order.
     """
     extra = None if lights_fn is None else lights_fn(srt["points"], srt["normals"], srt["ids"])
-    rgbs = []
-    for k in range(1 if extra is None else extra.shape[1]):
-        fn = None if extra is None else (lambda *_, e=extra[:, k]: e)
-        rgb, spec = shade(scene, srt["ids"], srt["points"], srt["normals"], srt["albedo"], eye, specular, fn)
-        rgbs.append(unsort(rgb, srt["order"]))
+    base, spec = _unlit_terms(scene, srt["ids"], srt["points"], srt["normals"], eye, specular)  # once for all lights
+    rgbs = [unsort(_radiance(base, None if extra is None else extra[:, k], srt["albedo"], spec if specular else None,
+                             srt["ids"]),
+                   srt["order"]) for k in range(1 if extra is None else extra.shape[1])]
     return rgbs, unsort(spec, srt["order"])
 
 
@@ -412,23 +411,35 @@ def shade(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.
     Returns:
         rgb :math:`(N, 3)` (not clipped), specular radiance :math:`(N,)`.
     """
+    base, spec = _unlit_terms(scene, ids, points, normals, eye, specular)
+    extra = None if extra_light_fn is None else extra_light_fn(points, normals, ids)
+    return _radiance(base, extra, albedo, spec if specular else None, ids), spec
+
+
+def _unlit_terms(scene: Scene, ids: torch.Tensor, points: torch.Tensor, normals: torch.Tensor, eye: np.ndarray,
+                 specular: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """The parts of :func:`shade` that no extra light changes: the scene's irradiance :math:`(N, 1)` and the
+    specular radiance :math:`(N,)` (zeros without ``specular``)."""
     dtype = points.dtype
     light = torch.as_tensor(scene.light_dir, dtype=dtype)
     strength = 1 - scene.ambient if scene.light_strength is None else scene.light_strength
-    irradiance = (normals @ (light * strength)).clamp_(min=0.0).add_(scene.ambient)[:, None]
-    if extra_light_fn is not None:
-        extra = extra_light_fn(points, normals, ids)
-        irradiance = irradiance + (extra if extra.dim() == 2 else extra[:, None])
+    base = (normals @ (light * strength)).clamp_(min=0.0).add_(scene.ambient)[:, None]
+    spec = specular_radiance(scene, ids, points, normals, eye) if specular else torch.zeros(points.shape[0], dtype=dtype)
+    return base, spec
+
+
+def _radiance(base: torch.Tensor, extra: torch.Tensor | None, albedo: torch.Tensor, spec: torch.Tensor | None,
+              ids: torch.Tensor) -> torch.Tensor:
+    """:func:`shade`'s ``rgb`` from its unlit terms and one extra irradiance (:math:`(N,)`, :math:`(N, 3)` or
+    None); ``spec`` None: no specular term."""
+    irradiance = base if extra is None else base + (extra if extra.dim() == 2 else extra[:, None])
     rgb = albedo * irradiance
-    if specular:
-        spec = specular_radiance(scene, ids, points, normals, eye)
+    if spec is not None:
         rgb += spec[:, None]
-    else:
-        spec = torch.zeros(points.shape[0], dtype=dtype)
     miss = ids < 0
     if bool(miss.any()):
         rgb[miss] = 0.0
-    return rgb, spec
+    return rgb
 
 
 EDGE_CREASE = 0.1  # 1 - cos of the normal turn between neighbours that marks a pixel for supersampling
