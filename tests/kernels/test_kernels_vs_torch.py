@@ -131,16 +131,20 @@ def test_fixed_point_concurrent_sweeps_share_one_buffer_exactly(h, chunk, monkey
     assert np.array_equal(fixed_to_float(sequential, 16), float_ref)
 
 
-def test_fixed_point_selection_equals_float_selection():
-    """The selection pass reading an int16 ``s * S`` volume (converted row by row) gives the float32
-    volume's results exactly."""
+@pytest.mark.parametrize("h, w, d", [(ROW_BLOCK + 3, 41, 19), (131, 450, 64), (9, 5, 12), (4, 30, 4), (6, 11, 3)])
+@pytest.mark.parametrize("method, ratio, lr_tol", [(1, 0.05, 1.0), (2, 0.0, -1.0), (0, 0.3, 0.0)])
+def test_fixed_point_selection_equals_float_selection(h, w, d, method, ratio, lr_tol):
+    """The selection pass reading an int16 ``s * S`` volume (the int16 min/blend kernel for D >= 4, the
+    row-by-row conversion below) gives the float32 volume's results exactly: more rows than the 64 row
+    chunks, W < D (right-reference diagonal shorter than D), ties at the best and at the second best."""
     from stereonet.kernels.select import select_confidence_hwd
 
-    rng = np.random.default_rng(1)
-    acc = rng.integers(0, 3000, (ROW_BLOCK + 3, 41, 19)).astype(np.int16)
-    acc[2, 5] = 7  # ties
-    ref = select_confidence_hwd(acc.astype(np.float32) / np.float32(16), 1, 0.05, 1.0, np.float32(1e-6))
-    got = select_confidence_hwd(acc, 1, 0.05, 1.0, np.float32(1e-6), 1.0 / 16)
+    rng = np.random.default_rng(h * w + d)
+    acc = rng.integers(0, 3000, (h, w, d)).astype(np.int16)
+    acc[2, 1] = 7  # ties everywhere in one pixel
+    acc[..., d - 1] = acc[..., 0]  # ties between far disparities
+    ref = select_confidence_hwd(acc.astype(np.float32) / np.float32(16), method, ratio, lr_tol, np.float32(1e-6))
+    got = select_confidence_hwd(acc, method, ratio, lr_tol, np.float32(1e-6), 1.0 / 16)
     for a, b in zip(ref, got):
         assert a.dtype == b.dtype and np.array_equal(a, b)
 
