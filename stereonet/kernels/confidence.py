@@ -12,6 +12,14 @@ import numpy as np
 from numba import prange
 
 
+@numba.njit(inline="always", fastmath=False)
+def clipped_margin(c1, c2, eps):
+    """The cost-margin confidence of a finite best ``c1`` and competitor ``c2``:
+    ``clip((c2 - c1) / (|c2| + eps), 0, 1)`` (float32; the one formula every kernel here uses)."""
+    m = (c2 - c1) / (abs(c2) + eps)
+    return min(max(m, np.float32(0.0)), np.float32(1.0))
+
+
 @numba.njit(parallel=True, cache=True, fastmath=False)
 def cost_margin_hwd(cost, exclude, eps):
     """cost (H, W, D) float32 -> confidence (H, W) float32 in [0, 1] (see the torch version)."""
@@ -39,6 +47,5 @@ def cost_margin_hwd(cost, exclude, eps):
             if c2 == inf:
                 out[y, x] = 1.0
                 continue
-            m = (c2 - c1) / (abs(c2) + eps)
-            out[y, x] = min(max(m, np.float32(0.0)), np.float32(1.0))
+            out[y, x] = clipped_margin(c1, c2, eps)
     return out

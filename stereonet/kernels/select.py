@@ -11,6 +11,8 @@ import numba
 import numpy as np
 from numba import prange
 
+from stereonet.kernels.confidence import clipped_margin
+
 
 @numba.njit(inline="always", fastmath=False)
 def wta_right_row(row, out):
@@ -115,8 +117,15 @@ def _margin_scalar(c, exclude, eps):
             c2 = c[d]
     if c2 == inf:
         return np.float32(1.0)
-    m = (c2 - c1) / (abs(c2) + eps)
-    return min(max(m, np.float32(0.0)), np.float32(1.0))
+    return clipped_margin(c1, c2, eps)
+
+
+@numba.njit(inline="always")
+def _selection_outputs(H, W):
+    """The (H, W) outputs of both selection kernels: disp, min_cost (filled by every pixel), unique and lr_ok
+    (True until a test fails), disp_right (0 = the WTA start), confidence (0 unless computed)."""
+    return (np.empty((H, W), np.float32), np.empty((H, W), np.float32), np.ones((H, W), np.bool_),
+            np.zeros((H, W), np.float32), np.ones((H, W), np.bool_), np.zeros((H, W), np.float32))
 
 
 # fastmath=False: +inf is the "no competitor" sentinel and NaN must never win (see stereonet.kernels.confidence)
@@ -126,12 +135,7 @@ def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf, inv_scale):
     returns ``(disp, min_cost, unique, disp_right, lr_ok, confidence)`` (confidence zeros without it).
     The costs are ``vol * inv_scale`` (1 for a float32 volume: the same bits)."""
     H, W, D = vol.shape
-    disp = np.empty((H, W), np.float32)
-    min_cost = np.empty((H, W), np.float32)
-    unique = np.ones((H, W), np.bool_)
-    disp_right = np.zeros((H, W), np.float32)
-    lr_ok = np.ones((H, W), np.bool_)
-    conf = np.zeros((H, W), np.float32)
+    disp, min_cost, unique, disp_right, lr_ok, conf = _selection_outputs(H, W)
     keep = np.float32(1.0 - ratio)
     inf = np.float32(np.inf)
     n_chunks = min(H, 64)  # row chunks (per-chunk buffers), plenty for any thread count
@@ -162,8 +166,7 @@ def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf, inv_scale):
                 elif c2 == inf:
                     conf[y, x] = 1.0
                 else:
-                    m = (c2 - c1) / (abs(c2) + eps)
-                    conf[y, x] = min(max(m, np.float32(0.0)), np.float32(1.0))
+                    conf[y, x] = clipped_margin(c1, c2, eps)
     return disp, min_cost, unique, disp_right, lr_ok, conf
 
 
@@ -292,12 +295,7 @@ def _select_kernel_i16(vol, method, ratio, lr_tol, eps, inv_scale):
     scale). The same numbers as :func:`_select_kernel`: integers compare as their exact float32 images do,
     and with D >= 4 every pixel has a second best at |d - best| > 1 (no +inf case)."""
     H, W, D = vol.shape
-    disp = np.empty((H, W), np.float32)
-    min_cost = np.empty((H, W), np.float32)
-    unique = np.ones((H, W), np.bool_)
-    disp_right = np.zeros((H, W), np.float32)
-    lr_ok = np.ones((H, W), np.bool_)
-    conf = np.zeros((H, W), np.float32)
+    disp, min_cost, unique, disp_right, lr_ok, conf = _selection_outputs(H, W)
     keep = np.float32(1.0 - ratio)
     big = np.int16(32767)
     n_chunks = min(H, 64)
@@ -339,8 +337,7 @@ def _select_kernel_i16(vol, method, ratio, lr_tol, eps, inv_scale):
                     cp = np.float32(T[bx + 1, x]) * inv_scale
                     off = subpixel_offset(bv, cm, cp, method)
                 disp[y, x] = np.float32(bx) + off
-                m = (c2 - bv) / (abs(c2) + eps)
-                conf[y, x] = min(max(m, np.float32(0.0)), np.float32(1.0))
+                conf[y, x] = clipped_margin(bv, c2, eps)
             _argmin_rows_i16(T, 1, best_r, ri)
             out = disp_right[y]
             for x in range(W):
