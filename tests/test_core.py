@@ -114,7 +114,7 @@ def test_matcher_inputs_are_checked_once(monkeypatch):
         for kw in ({}, {"backend": "torch"}, {"keep_volume": True}):
             calls.clear()
             matchers.match(name, left, right, 8, **kw)
-            assert calls.count((1, 3, 20, 40)) == 2, (name, kw, calls)  # left and right, once each
+            assert calls == [(), ()], (name, kw, calls)  # left and right, once each (the sum of a finite image)
     bad = left.clone()
     bad[0, 0, 3, 3] = float("nan")
     with pytest.raises(StereoInputError, match="left: expected finite"):
@@ -123,5 +123,27 @@ def test_matcher_inputs_are_checked_once(monkeypatch):
         checks.check_finite(left, "left")  # trusted: no pass
         with pytest.raises(StereoInputError, match="copy"):
             checks.check_finite(bad, "copy")
+    calls.clear()
     checks.check_finite(left, "left")
-    assert calls[-1] == (1, 3, 20, 40)  # outside the block it is checked again
+    assert calls == [()]  # outside the block it is checked again
+
+
+def test_check_finite_sum_overflow_falls_back_to_the_elementwise_test():
+    """check_finite tests the sum first: finite values whose sum overflows must still pass (elementwise
+    fallback), and one NaN or inf among them must still fail."""
+    import pytest
+
+    from stereonet.checks import StereoInputError, check_finite
+
+    huge = torch.full((1, 1, 4, 8), 3e38)
+    assert not torch.isfinite(huge.sum())
+    check_finite(huge, "left")
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        x = huge.clone()
+        x[0, 0, 1, 2] = bad
+        with pytest.raises(StereoInputError, match="left: expected finite"):
+            check_finite(x, "left")
+    x = torch.rand(1, 1, 4, 8)
+    x[0, 0, 0, 0], x[0, 0, 0, 1] = float("inf"), -float("inf")  # the sum is NaN, not inf
+    with pytest.raises(StereoInputError, match="left: expected finite"):
+        check_finite(x, "left")

@@ -237,16 +237,22 @@ def _multiwindow_row(a_top, a_mid, a_bot, r, out):
 
 @numba.njit(cache=True, fastmath=False)
 def _row_max(row, acc):
-    """max of a (W, D) row: elementwise maxima over x into acc (D,) (vectorised), then over d."""
+    """max of a (W, D) row: elementwise maxima over x into the two-row buffer acc (2, D) (vectorised; read
+    from one row and written to the other, see :func:`stereonet.kernels.select._argmin_step`), then over d."""
     W, D = row.shape
-    acc[:] = row[0]
+    acc[0] = row[0]
     for x in range(1, W):
         r = row[x]
+        src = acc[(x - 1) & 1]
+        dst = acc[x & 1]
         for d in range(D):
-            acc[d] = r[d] if r[d] > acc[d] else acc[d]
-    m = acc[0]
+            v = r[d]
+            a = src[d]
+            dst[d] = v if v > a else a
+    last = acc[(W - 1) & 1]
+    m = last[0]
     for d in range(1, D):
-        m = acc[d] if acc[d] > m else m
+        m = last[d] if last[d] > m else m
     return m
 
 
@@ -289,6 +295,7 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
         b = min(a + ROW_BLOCK, H)
         colsum = np.zeros((W, D), np.float32)
         hs = np.empty(D, np.float32)
+        acc = np.empty((2, D), np.float32)
         rrev = np.empty((C, W), np.float32)
         nrev = np.empty((2, W), np.float32)
         crev = np.empty((CL.shape[0], W), np.uint64)
@@ -299,10 +306,10 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
         vmin = np.empty((W, D), np.float32)
         dint = np.empty(W, np.float32)
         T = np.empty((D, W) if sel else (1, 1), np.float32)
-        best = np.empty(W, np.float32)
-        bi = np.empty(W, np.int64)
-        second = np.empty(W, np.float32)
-        best_r = np.empty(W, np.float32)
+        best = np.empty((2, W), np.float32)
+        second = np.empty((2, W), np.float32)
+        best_r = np.empty((2, W), np.float32)
+        bi, ri = np.empty((2, W), np.int32), np.empty((2, W), np.int32)
         s = max(a - R_post, 0)
         e = min(b + R_post, H)
         for ya in range(s, e):
@@ -345,11 +352,11 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
                     row = out
                 else:
                     row = ring[y % n_ring]
-                row_max[y] = _row_max(row, hs)
+                row_max[y] = _row_max(row, acc)
                 if sel:
                     transpose_row_scaled(row, T, np.float32(1.0))
                     select_row_t(T, y, method, keep, ratio > 0, True, disp, min_cost, unique, dint, strip,
-                                 disp_right, best, bi, second, best_r)
+                                 disp_right, best, bi, second, best_r, ri)
                     if lr_tol >= 0:
                         lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
                 else:

@@ -142,16 +142,16 @@ def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf, inv_scale):
     for chunk in prange(n_chunks):
         T = np.empty((D, W), np.float32)
         dint = np.empty(W, np.float32)
-        best = np.empty(W, np.float32)
-        bi = np.empty(W, np.int64)
-        second = np.empty(W, np.float32)
-        best_r = np.empty(W, np.float32)
+        best = np.empty((2, W), np.float32)
+        second = np.empty((2, W), np.float32)
+        best_r = np.empty((2, W), np.float32)
+        bi, ri = np.empty((2, W), np.int32), np.empty((2, W), np.int32)
         strip = np.zeros((1, 1, 4), np.float32)
         for y in range(chunk * H // n_chunks, (chunk + 1) * H // n_chunks):
             transpose_row_scaled(vol[y], T, inv_scale)
             # the second best is needed for the confidence even without a uniqueness test
             select_row_t(T, y, method, keep, ratio > 0 or with_conf, False, disp, min_cost, unique, dint, strip,
-                         disp_right, best, bi, second, best_r)
+                         disp_right, best, bi, second, best_r, ri)
             if with_conf and ratio <= 0:
                 unique[y] = True
             if lr_tol >= 0:
@@ -159,8 +159,8 @@ def _select_kernel(vol, method, ratio, lr_tol, eps, with_conf, inv_scale):
             if not with_conf:
                 continue
             for x in range(W):
-                c1 = best[x]
-                c2 = second[x]
+                c1 = best[0, x]
+                c2 = second[0, x]
                 if not (np.isfinite(c1) and (np.isfinite(c2) or c2 == inf)):
                     conf[y, x] = _margin_scalar(T[:, x], 1, eps)  # T[:, x] = this pixel's costs
                 elif c2 == inf:
@@ -191,9 +191,38 @@ def transpose_row_scaled(row, T, inv_scale):
             T[d, x] = np.float32(r[d]) * inv_scale
 
 
+@numba.njit(inline="always", fastmath=False)
+def _argmin_step(t, sb, si, db, di, dd):
+    """One disparity of a running first minimum: ``(db, di) = (t, dd) where t < sb else (sb, si)``, elementwise.
+
+    Read from one row of a two-row buffer and written to the other (callers alternate them): the in-place form
+    ``b[x] = v if v < b[x] else b[x]`` compiles to a masked store (``vmaskmovps``), microcoded on the AMD cores
+    measured and ~4x slower than this; every value is loaded before the select, so no arm holds a conditional
+    load either. Strict ``<``: ties keep the smaller d, and a NaN never wins."""
+    for x in range(t.shape[0]):
+        v = t[x]
+        b = sb[x]
+        s = si[x]
+        take = v < b
+        db[x] = v if take else b
+        di[x] = dd if take else s
+
+
+@numba.njit(inline="always", fastmath=False)
+def _second_step(t, sb, bi, lo_d, hi_d, db):
+    """One disparity of the running second best: ``db = min(sb, t)`` where the best ``bi`` is outside
+    ``[lo_d, hi_d]`` (|d - bi| > 1), else ``sb`` (two-row buffers as :func:`_argmin_step`)."""
+    for x in range(t.shape[0]):
+        v = t[x]
+        s = sb[x]
+        k = bi[x]
+        far = (k > hi_d) | (k < lo_d)
+        db[x] = min(s, v) if far else s
+
+
 @numba.njit(cache=True, fastmath=False)
 def select_row_t(T, y, method, keep, use_unique, in_image_only, disp, min_cost, unique, disp_int, strip,
-                 disp_right, best, bi, second, best_r):
+                 disp_right, best, bi, second, best_r, ri):
     """Selection of one cost row given transposed, ``T`` (D, W): every loop runs along x (contiguous,
     branch-free, vectorised). Rules of :func:`select_hwd` (first minimum, uniqueness over |d - bi| > 1,
     sub-pixel fit) and :func:`wta_right_row`.
@@ -201,63 +230,75 @@ def select_row_t(T, y, method, keep, use_unique, in_image_only, disp, min_cost, 
     ``in_image_only``: only d <= x are candidates (the costs at d > x, outside the right image, are not
     final yet): pixels x < D - 1 get their uniqueness/sub-pixel inputs in ``strip[y, x]`` (second best in
     the image, c(bi - 1), c(bi + 1) if in the image, bi) for a later pass; otherwise (a filled volume)
-    every d is a candidate and every pixel is final. disp_int (W,) and the scratch rows best, bi (int64),
-    second, best_r (W,) are per-thread buffers.
+    every d is a candidate and every pixel is final. disp_int (W,) and the two-row scratch buffers best,
+    second, best_r (2, W) float32 and bi, ri (2, W) int32 are per-thread (:func:`_argmin_step`); on return
+    ``best[0]``, ``bi[0]`` and ``second[0]`` hold the row's best cost, its disparity and the second best.
     """
     D, W = T.shape
-    best[:] = T[0]
-    bi[:] = 0
+    best[0] = T[0]
+    bi[0] = 0
     for d in range(1, D):
+        p, q = (d - 1) & 1, d & 1
         lo = d if in_image_only else 0
-        t = T[d, lo:]
-        b = best[lo:]
-        k = bi[lo:]
-        for x in range(W - lo):
-            v = t[x]
-            take = v < b[x]
-            b[x] = v if take else b[x]
-            k[x] = d if take else k[x]
+        best[q, :lo] = best[p, :lo]
+        bi[q, :lo] = bi[p, :lo]
+        _argmin_step(T[d, lo:], best[p, lo:], bi[p, lo:], best[q, lo:], bi[q, lo:], np.int32(d))
+    f = (D - 1) & 1
+    if f:
+        best[0] = best[1]
+        bi[0] = bi[1]
+    b0 = best[0]
+    k0 = bi[0]
     if use_unique:
-        second[:] = np.float32(np.inf)
+        second[0] = np.float32(np.inf)
         for d in range(D):
+            p, q = d & 1, (d + 1) & 1
             lo = d if in_image_only else 0
-            t = T[d, lo:]
-            sc = second[lo:]
-            k = bi[lo:]
-            for x in range(W - lo):
-                far = (d + 1 < k[x]) | (d > k[x] + 1)
-                sc[x] = min(sc[x], t[x]) if far else sc[x]
+            second[q, :lo] = second[p, :lo]
+            _second_step(T[d, lo:], second[p, lo:], k0[lo:], np.int32(d - 1), np.int32(d + 1), second[q, lo:])
+        if D & 1:
+            second[0] = second[1]
+    s0 = second[0]
     for x in range(W):
         nv = min(x + 1, D) if in_image_only else D
-        bx = bi[x]
-        bv = best[x]
+        bx = np.int64(k0[x])
+        bv = b0[x]
         min_cost[y, x] = bv
         disp_int[x] = bx
         cm = T[bx - 1, x] if bx > 0 else np.float32(0.0)
         cp = T[bx + 1, x] if bx + 1 < nv else np.float32(0.0)
         if nv == D:
             if use_unique:
-                unique[y, x] = is_unique(bv, second[x], keep)
+                unique[y, x] = is_unique(bv, s0[x], keep)
             off = np.float32(0.0)
             if method > 0 and 0 < bx < D - 1:
                 off = subpixel_offset(bv, cm, cp, method)
             disp[y, x] = np.float32(bx) + off
         else:
-            strip[y, x, 0] = second[x]
+            strip[y, x, 0] = s0[x]
             strip[y, x, 1] = cm
             strip[y, x, 2] = cp
             strip[y, x, 3] = bx
-    # right-reference WTA: candidates of right pixel xr are T[d, xr + d] (contiguous in xr)
-    best_r[:] = T[0]
-    out = disp_right[y]
-    out[:] = 0
-    for d in range(1, min(D, W)):
-        t = T[d, d:]
-        for xr in range(W - d):
-            v = t[xr]
-            take = v < best_r[xr]
-            best_r[xr] = v if take else best_r[xr]
-            out[xr] = np.float32(d) if take else out[xr]
+    _wta_right_t(T, best_r, ri, disp_right[y])
+
+
+@numba.njit(inline="always", fastmath=False)
+def _wta_right_t(T, best_r, ri, out):
+    """Right-reference WTA of a transposed row ``T`` (D, W) into out (W,) float32: the candidates of right pixel
+    xr are ``T[d, xr + d]`` (contiguous in xr); two-row buffers best_r (float32) and ri (int32)."""
+    D, W = T.shape
+    best_r[0] = T[0]
+    ri[0] = 0
+    n = min(D, W)
+    for d in range(1, n):
+        p, q = (d - 1) & 1, d & 1
+        m = W - d
+        best_r[q, m:] = best_r[p, m:]
+        ri[q, m:] = ri[p, m:]
+        _argmin_step(T[d, d:], best_r[p, :m], ri[p, :m], best_r[q, :m], ri[q, :m], np.int32(d))
+    f = (n - 1) & 1
+    for xr in range(W):
+        out[xr] = np.float32(ri[f, xr])
 
 
 @numba.njit(inline="always", fastmath=False)
