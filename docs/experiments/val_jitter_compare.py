@@ -9,6 +9,8 @@ leaves such errors; the clean set is reported beside it.
 
 A third column, ``warped``, adds offsets that vary across the image (``val_vertical_warp`` 0.5 rows at the
 borders beside the 1-row offset): the selection set of the vertical-warp ablation (seventh/eighth session).
+A fourth, ``jittered aa``, is the jittered set rendered anti-aliased (data_gen ``supersample`` 2, same seed and
+offsets): the selection set of the anti-aliased-renders ablation (eleventh session).
 """
 import sys
 
@@ -20,8 +22,8 @@ from stereonet.training.data import SyntheticStereoDataModule, collate_pairs
 from stereonet.training.losses import disparity_errors
 
 
-def val_epe(net, jitter: float, batch_size: int = 4, warp: float = 0.0) -> float:
-    dm = SyntheticStereoDataModule(source="data_gen", height=96, width=192, val_pairs=12, supersample=1,
+def val_epe(net, jitter: float, batch_size: int = 4, warp: float = 0.0, supersample: int = 1) -> float:
+    dm = SyntheticStereoDataModule(source="data_gen", height=96, width=192, val_pairs=12, supersample=supersample,
                                    val_seed=900000, val_vertical_jitter=jitter, val_vertical_warp=warp)
     dm.setup("fit")
     total, count = 0.0, 0
@@ -40,4 +42,4 @@ for path in sys.argv[1:]:
     net, _ = load_weights(path)
     net.eval()
     print(f"{path}: val WTA EPE clean {val_epe(net, 0.0):.3f}  jittered {val_epe(net, 1.0):.3f}  "
-          f"warped {val_epe(net, 1.0, warp=0.5):.3f}", flush=True)
+          f"warped {val_epe(net, 1.0, warp=0.5):.3f}  jittered aa {val_epe(net, 1.0, supersample=2):.3f}", flush=True)
