@@ -162,12 +162,12 @@ def _chw(img: torch.Tensor) -> np.ndarray:
 
 
 def _box_np(img: np.ndarray, window: int) -> np.ndarray:
-    """box_mean of a planar (C, H, W) or (H, W) float32 array with the numba kernel (a copy)."""
-    from stereonet.kernels.cost import box_mean_hwd
+    """box_mean of a planar (C, H, W) or (H, W) float32 array with the engine's numba box (a new array)."""
+    from stereonet.kernels.block import box_mean_planes
 
-    hwc = np.array(img[:, :, None] if img.ndim == 2 else img.transpose(1, 2, 0), dtype=np.float32, order="C")
-    box_mean_hwd(hwc, window)
-    return np.ascontiguousarray(hwc[:, :, 0] if img.ndim == 2 else hwc.transpose(2, 0, 1))
+    planes = np.ascontiguousarray(img[None] if img.ndim == 2 else img, dtype=np.float32)
+    out = box_mean_planes(planes, window)
+    return out[0] if img.ndim == 2 else out
 
 
 def _inv_sd(var: np.ndarray) -> np.ndarray:
