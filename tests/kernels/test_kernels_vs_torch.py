@@ -197,10 +197,13 @@ def test_median_network_equals_torch(h, w, density):
 
 
 @pytest.mark.parametrize("cost, window, kwargs", [("sad", 5, {}), ("ncc", 7, {}), ("census", 1, {"census_window": 7}),
-                                                  ("census_ad", 3, {})])
+                                                  ("census_ad", 3, {}), ("sad", 9, {}), ("ssd", 11, {}),
+                                                  ("sad", 13, {}), ("zsad", 15, {}), ("lssad", 9, {}),
+                                                  ("ncc", 13, {}), ("adaptive", 7, {"mode": "multiwindow"})])
 def test_block_engine_volume_equals_torch_across_row_blocks(cost, window, kwargs):
     """The row-block engine restarts its vertical sums every ROW_BLOCK rows: H = 2 blocks + 6 rows, W not
-    a multiple of anything, D = 13."""
+    a multiple of anything, D = 13. Windows 3..11 take the written-out horizontal sums, 13 and 15 the
+    doubling (both paths of ``kernels.block._box_row``); zsad/lssad/ncc also the planar box means."""
     g = torch.Generator().manual_seed(5)
     h, w = 2 * ROW_BLOCK + 6, 43
     left, right = torch.rand(2, 3, h, w, generator=g), torch.rand(2, 3, h, w, generator=g)
