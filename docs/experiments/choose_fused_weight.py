@@ -3,25 +3,20 @@ import functools
 import sys
 
 import data_gen
-from stereonet.aggregate.sgm import sgm_aggregate
-from stereonet.cost import build_cost_volume
 from stereonet.data import _SyntheticItems
 from stereonet.evaluation import format_table, run_evaluation
-from stereonet.matchers import local as rl
 from stereonet.matchers import register
-from stereonet.models import registered as reg
+from stereonet.matchers.learned import siamese_census_sgm_matcher
 
 ckpt = sys.argv[1]
 alphas = [float(x) for x in sys.argv[2].split(",")]
 specs = sys.argv[3].split(";") if len(sys.argv) > 3 else ["val2", "val4"]
 
-def fused(left, right, max_disp, a=0.5):
-    vol = build_cost_volume(left, right, max_disp, cost="census", window=1, census_window=7)
-    s = reg._siamese_cost(left, right, max_disp, ckpt).clamp(max=2.0)
-    vol = (1 - a) * vol + a * 24.0 * s
-    agg = sgm_aggregate(vol, 2.0, 48.0, paths=8, image=left, p2_alpha=20.0)
-    return rl.select_and_filter(agg, subpixel="parabola", uniqueness=0.05, lr_tol=1.0, median=3,
-                                speckle_size=100, speckle_diff=1.0, fill=False)
+
+def fused(left, right, max_disp, a=0.5, **options):
+    """The registered siamese-census-sgm with learned_weight a (an earlier copy of the script rebuilt it by hand)."""
+    return siamese_census_sgm_matcher(left, right, max_disp, checkpoint=ckpt, learned_weight=a, **options)
+
 
 methods = ["sgm", "siamese-sgm"]
 for a in alphas:
