@@ -7,13 +7,16 @@ IJCV 2006:
 * message update ``m_{p→q}(d) = min_d' [h_p(d') + λ w_pq min(|d - d'|, T)]`` with
   ``h_p = C_p + Σ_{s ∈ N(p) \\ q} m_{s→p}``, computed in O(D) by the linear distance transform
   (:func:`~stereonet.aggregate.mrf.truncated_linear_min_convolution`), messages normalised to min 0;
-* synchronous ("flooding") updates of all messages of the whole grid at once: a numba kernel parallel over
-  rows on CPU (``backend="auto"``), tested equal to the vectorised torch reference (``backend="torch"``);
+* synchronous ("flooding") updates of all messages of the whole grid at once: on CPU (``backend="auto"``)
+  numba kernels on a row-major ``(B, H, D, W)`` copy, vectorised along rows, the iterations of a level run
+  as a wavefront over the rows (parallel across iterations), tested equal to the vectorised torch
+  reference (``backend="torch"``);
 * coarse-to-fine: data costs summed over 2×2 blocks per level, messages of a coarse level initialise the
   four children at the next finer level, so few iterations per level propagate information far.
 
 Cost: O(iterations · 4 · B·D·H·W) time per level (the coarse levels add a third), about 11 volumes of
-``B·D·H·W`` of memory at the finest level (cost, its pixel-major copy, 4 messages double-buffered, beliefs).
+``B·D·H·W`` of memory at the finest level (cost, its row-major copy, 4 messages double-buffered and shared
+by all levels, beliefs).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -77,17 +81,18 @@ def _run_level(cost: torch.Tensor, messages: list[torch.Tensor], slopes: list[to
     return [from_left, from_right, from_up, from_down]
 
 
-def _run_level_numba(cost: torch.Tensor, messages: list[torch.Tensor], slopes: list[torch.Tensor],
-                     truncation: float, iterations: int) -> list[torch.Tensor]:
-    """Same as :func:`_run_level` through the numba kernel, on *pixel-major* CPU tensors (B, H, W, D).
+def _run_level_numba(cost: np.ndarray, start: np.ndarray, other: np.ndarray, slopes: list[torch.Tensor],
+                     truncation: float, iterations: int) -> int:
+    """Same as :func:`_run_level` through the numba kernel, on *row-major* arrays, in place.
 
-    ``messages`` are consumed (their memory is reused); ``slopes`` stay (B, 1, H, W).
+    cost ``(B, H, D, W)``; ``start`` the incoming messages ``(4, B, H, D, W)`` [from left, right, up, down],
+    ``other`` a buffer of the same shape; ``slopes`` stay (B, 1, H, W) tensors. The cap ``s·T`` is computed
+    here in the cost's dtype, as the reference does. Returns which buffer holds the result (0 = ``start``).
     """
     from stereonet.kernels.bp import bp_level
 
-    slope_array = torch.cat(slopes, dim=1).permute(0, 2, 3, 1).contiguous().numpy()  # BxHxWx4
-    out = bp_level(cost.numpy(), *(m.numpy() for m in messages), slope_array, float(truncation), int(iterations))
-    return [torch.from_numpy(a) for a in out]
+    slope_array = torch.cat(slopes + [s * truncation for s in slopes], dim=1).contiguous().numpy()  # Bx8xHxW
+    return int(bp_level(cost, start, other, slope_array, int(iterations)))
 
 
 def _pool_sum(x: torch.Tensor) -> torch.Tensor:
@@ -138,36 +143,65 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
     h, w = cost.shape[-2:]
     levels = max(1, min(levels, int(math.log2(max(1, min(h, w) // 2))) + 1))
 
-    pyramid = [(cost, wr, wd)]
+    weights = [(wr, wd)]
     for _ in range(levels - 1):
-        c, r, d = pyramid[-1]
-        pyramid.append((_pool_sum(c), F.avg_pool2d(F.pad(r, (0, r.shape[-1] % 2, 0, r.shape[-2] % 2), mode="replicate"), 2),
+        r, d = weights[-1]
+        weights.append((F.avg_pool2d(F.pad(r, (0, r.shape[-1] % 2, 0, r.shape[-2] % 2), mode="replicate"), 2),
                         F.avg_pool2d(F.pad(d, (0, d.shape[-1] % 2, 0, d.shape[-2] % 2), mode="replicate"), 2)))
     truncation_eff = min(truncation, float(cost.shape[1]))
-    messages: list[torch.Tensor] | None = None
-    # the numba kernel works pixel-major (B, H, W, D) on CPU: spatial dims 1, 2 instead of 2, 3
-    spatial = (1, 2) if numba_path else (2, 3)
-    for level in range(levels - 1, -1, -1):
-        c, r, d = pyramid[level]
-        if numba_path:
-            c = c.permute(0, 2, 3, 1).to("cpu").contiguous()  # BxHxWxD
-        if messages is None:
-            messages = [torch.zeros_like(c) for _ in range(4)]
-        else:  # each coarse pixel's messages initialise its 2x2 children
-            hh, ww = (c.shape[i] for i in spatial)
-            messages = [m.repeat_interleave(2, dim=spatial[0]).repeat_interleave(2, dim=spatial[1])
-                        .narrow(spatial[0], 0, hh).narrow(spatial[1], 0, ww).contiguous() for m in messages]
-        slopes = _slopes(smoothness, r, d)
-        if numba_path:
-            messages = _run_level_numba(c, messages, slopes, truncation_eff, iterations)
-        else:
-            messages = _run_level(c, messages, slopes, truncation_eff, iterations)
-    beliefs = c + messages[0]
-    for m in messages[1:]:
-        beliefs += m
-    del messages
     if numba_path:
-        beliefs = beliefs.permute(0, 3, 1, 2).to(cost.device)  # BxDxHxW view
-    labels = beliefs.argmin(dim=1, keepdim=True)
+        from stereonet.kernels.bp import beliefs_argmin, pool_sum2, upsample2
+
+        # the kernels work row-major (B, H, D, W): each grid row is D contiguous runs of W pixels
+        B, D, H, W = cost.shape
+        finest = np.empty((B, H, D, W), dtype=torch.empty(0, dtype=cost.dtype).numpy().dtype)
+        torch.from_numpy(finest).copy_(cost.permute(0, 2, 1, 3))
+        costs = [finest]
+        for _ in range(levels - 1):
+            costs.append(pool_sum2(costs[-1]))
+        # two flat buffers of 4 finest-level volumes, reused by every level: a level's incoming messages
+        # go to the buffer that does not hold the coarser level's result
+        buffers = [np.zeros(4 * finest.size, dtype=finest.dtype), np.empty(4 * finest.size, dtype=finest.dtype)]
+        result = None
+        held = 1
+        for level in range(levels - 1, -1, -1):
+            c = costs[level]
+            shape = (4,) + c.shape
+            start = buffers[1 - held][:c.size * 4].reshape(shape)
+            other = buffers[held][:c.size * 4].reshape(shape)
+            if result is not None:  # each coarse pixel's messages initialise its 2x2 children
+                upsample2(result.reshape((-1,) + result.shape[2:]), start.reshape((-1,) + c.shape[1:]))
+            r, d = weights[level]
+            slopes = _slopes(smoothness, r.to("cpu"), d.to("cpu"))
+            parity = _run_level_numba(c, start, other, slopes, truncation_eff, iterations)
+            result = start if parity == 0 else other
+            held = 1 - held if parity == 0 else held
+        # outputs allocated by numpy (large allocations get transparent huge pages: fewer page faults)
+        beliefs_rows = np.empty_like(finest)
+        labels_rows = np.empty((B, H, W), dtype=np.int64)
+        beliefs_argmin(finest, result, beliefs_rows, labels_rows)
+        del buffers, result, start, other, costs, finest
+        beliefs = torch.from_numpy(beliefs_rows).permute(0, 2, 1, 3).to(cost.device)  # BxDxHxW view
+        labels = torch.from_numpy(labels_rows).unsqueeze(1).to(cost.device)
+    else:
+        pyramid = [cost]
+        for _ in range(levels - 1):
+            pyramid.append(_pool_sum(pyramid[-1]))
+        messages_t: list[torch.Tensor] | None = None
+        for level in range(levels - 1, -1, -1):
+            c = pyramid[level]
+            if messages_t is None:
+                messages_t = [torch.zeros_like(c) for _ in range(4)]
+            else:  # each coarse pixel's messages initialise its 2x2 children
+                hh, ww = c.shape[-2:]
+                messages_t = [m.repeat_interleave(2, dim=2).repeat_interleave(2, dim=3)
+                              .narrow(2, 0, hh).narrow(3, 0, ww).contiguous() for m in messages_t]
+            r, d = weights[level]
+            messages_t = _run_level(c, messages_t, _slopes(smoothness, r, d), truncation_eff, iterations)
+        beliefs = c + messages_t[0]
+        for m in messages_t[1:]:
+            beliefs += m
+        del messages_t
+        labels = beliefs.argmin(dim=1, keepdim=True)
     energy = grid_energy(cost, labels, smoothness, truncation, weights_right, weights_down)
     return BPResult(labels.to(cost.dtype), beliefs, energy)
