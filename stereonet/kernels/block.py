@@ -22,9 +22,10 @@ means are over the in-image part of the window, and positions with ``x < d`` fin
 ``max(volume) + 1`` (the selection of mode 1 resolves the few left-border pixels that depend on that
 value once every row is done: :func:`finish_border_selection`).
 
-Loops written for the vectoriser (each measured 2-3x slower otherwise): shifted operands are slices
-indexed by the loop counter alone (an index ``i + k`` with a run-time ``k`` makes numba test it for
-wraparound on every element), minima are compare-selects, and no loop reads and writes the same buffer.
+Loops written for the vectoriser: shifted operands are slices indexed by the loop counter alone (an index
+``i + k`` with a run-time ``k`` makes numba test it for wraparound on every element and the horizontal sums
+measured 3x slower), and no loop reads and conditionally writes the same buffer (masked stores, see
+:func:`stereonet.kernels.select._argmin_step`).
 
 Inputs are planar: images ``(C, H, W)`` float32, census codes ``(K, H, W)`` uint64. Cost kinds:
 :data:`KIND_ABS` (mean over channels of ``|l - r|``), :data:`KIND_SQ` (squared), :data:`KIND_PROD`
@@ -207,10 +208,8 @@ def _box_row(colsum, window, ny, pa, pb, inv, out):
     ``colsum`` (D, W + 2r) has zero pads of r columns on both sides, so every window sums ``window``
     entries. Sums of 2^k neighbours by doubling (``s_k[i] = s_(k-1)[i] + s_(k-1)[i + 2^(k-1)]``, each level
     one vectorised pass along x); level k is added into ``out`` (at the offset of the lower set bits) when
-    bit k of ``window`` is set, lowest first. The levels ping-pong between the two separate scratch rows
-    ``pa``/``pb`` (W + 2r,): with every level a row of one 2-D array, LLVM cannot rule out the overlap of
-    source and destination at a run-time offset and leaves the passes scalar (3x slower, measured).
-    ``inv`` (W,) is scratch. Windows 3..11 take the written-out sums of :func:`_tap_row` instead."""
+    bit k of ``window`` is set, lowest first. Only the current level is needed, so the levels alternate
+    between the two scratch rows ``pa``/``pb`` (W + 2r,); ``inv`` (W,) is scratch. Windows 3..11 take the written-out sums of :func:`_tap_row` instead."""
     D, Wp = colsum.shape
     W = out.shape[1]
     r = window // 2
@@ -267,8 +266,8 @@ def _ncc_row(row, y, mu_l, isd_l, mu_r, isd_r):
 
 @numba.njit(cache=True, fastmath=False)
 def _multiwindow_px(a, b, c, e, mid):
-    """(mid + the two smallest of the four corner means a, b, c, e) / 3 (float32). Plain compare-selects
-    (not ``min``/``max``, whose NaN handling keeps the loop scalar); the means are finite."""
+    """(mid + the two smallest of the four corner means a, b, c, e) / 3 (float32), as compare-selects (the
+    same values as ``min``/``max`` for the finite means here)."""
     lo1 = a if a < b else b
     hi1 = b if a < b else a
     lo2 = c if c < e else e

@@ -1,6 +1,7 @@
-"""Numba CPU helpers of the cost volumes: box means of ``(H, W, C)`` float32 images, census codes and the
+"""Numba CPU helpers of the cost volumes: census codes and the
 out-of-image fill of ``(H, W, D)`` volumes, the learned-feature cost and the mix of two volumes. The classical
-volumes themselves are computed row by row by :mod:`stereonet.kernels.block`. Rows (or columns) run in parallel with ``prange``.
+volumes themselves, and the box means of planar images, are computed row by row by
+:mod:`stereonet.kernels.block`. Rows (or columns) run in parallel with ``prange``.
 """
 
 from __future__ import annotations
@@ -9,37 +10,6 @@ import numba
 import numpy as np
 from numba import prange, types
 from numba.extending import intrinsic
-
-
-@numba.njit(cache=True, fastmath=False)
-def _running_mean(src, dst, r):
-    """dst[i, :] = mean of src[max(i - r, 0) : min(i + r, N - 1) + 1, :] (float64 running sums)."""
-    N, D = src.shape
-    acc = np.zeros(D, np.float64)
-    for i in range(min(r, N)):
-        for d in range(D):
-            acc[d] += src[i, d]
-    for i in range(N):
-        if i + r < N:
-            for d in range(D):
-                acc[d] += src[i + r, d]
-        if i - r - 1 >= 0:
-            for d in range(D):
-                acc[d] -= src[i - r - 1, d]
-        n = min(i + r, N - 1) - max(i - r, 0) + 1
-        for d in range(D):
-            dst[i, d] = acc[d] / n
-
-
-@numba.njit(parallel=True, cache=True, fastmath=False)
-def box_mean_hwd(vol, window):
-    """In-place mean over the in-image part of a window x window square, per disparity."""
-    H, W, D = vol.shape
-    r = window // 2
-    for x in prange(W):
-        _running_mean(vol[:, x, :].copy(), vol[:, x, :], r)  # HxD column
-    for y in prange(H):
-        _running_mean(vol[y].copy(), vol[y], r)  # WxD row
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)
