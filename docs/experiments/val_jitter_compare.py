@@ -11,6 +11,8 @@ A third column, ``warped``, adds offsets that vary across the image (``val_verti
 borders beside the 1-row offset): the selection set of the vertical-warp ablation (seventh/eighth session).
 A fourth, ``jittered aa``, is the jittered set rendered anti-aliased (data_gen ``supersample`` 2, same seed and
 offsets): the selection set of the anti-aliased-renders ablation (eleventh session).
+A fifth, ``jittered 256x512``, is the jittered set at data_gen's default size (the size of eval.py's synthetic sets),
+WTA over 0..192 (its largest disparity): the selection set of the render-size ablation (twelfth session).
 """
 import sys
 
@@ -22,8 +24,9 @@ from stereonet.training.data import SyntheticStereoDataModule, collate_pairs
 from stereonet.training.losses import disparity_errors
 
 
-def val_epe(net, jitter: float, batch_size: int = 4, warp: float = 0.0, supersample: int = 1) -> float:
-    dm = SyntheticStereoDataModule(source="data_gen", height=96, width=192, val_pairs=12, supersample=supersample,
+def val_epe(net, jitter: float, batch_size: int = 4, warp: float = 0.0, supersample: int = 1,
+            size: tuple[int, int] = (96, 192), max_disp: int = 64) -> float:
+    dm = SyntheticStereoDataModule(source="data_gen", height=size[0], width=size[1], val_pairs=12, supersample=supersample,
                                    val_seed=900000, val_vertical_jitter=jitter, val_vertical_warp=warp)
     dm.setup("fit")
     total, count = 0.0, 0
@@ -32,7 +35,7 @@ def val_epe(net, jitter: float, batch_size: int = 4, warp: float = 0.0, supersam
         with torch.no_grad():
             b = batch["left"].shape[0]
             feats = net(torch.cat([batch["left"], batch["right"]]))
-            pred = siamese_cost_volume(feats[:b], feats[b:], 64).argmin(dim=1, keepdim=True).float()
+            pred = siamese_cost_volume(feats[:b], feats[b:], max_disp).argmin(dim=1, keepdim=True).float()
         total += float(disparity_errors(pred, batch["disparity"], batch["valid"])["epe"]) * b
         count += b
     return total / count
@@ -42,4 +45,5 @@ for path in sys.argv[1:]:
     net, _ = load_weights(path)
     net.eval()
     print(f"{path}: val WTA EPE clean {val_epe(net, 0.0):.3f}  jittered {val_epe(net, 1.0):.3f}  "
-          f"warped {val_epe(net, 1.0, warp=0.5):.3f}  jittered aa {val_epe(net, 1.0, supersample=2):.3f}", flush=True)
+          f"warped {val_epe(net, 1.0, warp=0.5):.3f}  jittered aa {val_epe(net, 1.0, supersample=2):.3f}  "
+          f"jittered 256x512 {val_epe(net, 1.0, size=(256, 512), max_disp=192):.3f}", flush=True)
