@@ -152,3 +152,26 @@ def mix_costs_hwd(own, other, w_own, w_other):
             for d in range(D):
                 out[y, x, d] = w_own * np.float32(own[y, x, d]) + w_other * other[y, x, d]
     return out
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # no fastmath: rint and the range test stay exact
+def mix_costs_u8_hwd(own, other, w_own, w_other, q):
+    """:func:`mix_costs_hwd` times ``q`` (a power of two, so the product is exact) rounded half to even, as
+    uint8 ``(H, W, D)``: the mixed cost on the ``1 / q`` grid in units of ``1 / q``. Returns ``(vol, fits)``;
+    ``fits`` is False when a value (NaN included) falls outside 0..255, and ``vol`` is then not to be used."""
+    H, W, D = own.shape
+    out = np.empty((H, W, D), np.uint8)
+    ok = np.ones(H, np.bool_)
+    lo, hi = np.float32(0.0), np.float32(255.0)
+    for y in prange(H):
+        good = True
+        for x in range(W):
+            o = out[y, x]
+            a = own[y, x]
+            b = other[y, x]
+            for d in range(D):
+                v = np.rint((w_own * np.float32(a[d]) + w_other * b[d]) * q)
+                good &= (v >= lo) & (v <= hi)
+                o[d] = np.uint8(min(max(v, lo), hi)) if v == v else np.uint8(0)
+        ok[y] = good
+    return out, bool(ok.all())

@@ -270,7 +270,8 @@ def siamese_census_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp
                                onnx_model: str | None = None, **options) -> StereoOutput:
     """``sgm`` (same penalties, selection, filters and confidence; options as for ``sgm``) on the cost
     ``(1 - a) * census + a * 24 * (1 - cos)``: the census Hamming distance (0..48 bits) and the Siamese
-    cost (0..2) brought to the same range, ``a = learned_weight`` (0 = plain ``sgm``)."""
+    cost (0..2) brought to the same range, ``a = learned_weight`` (0 = plain ``sgm``), rounded to quarter bits
+    (``mix_step``, see ``sgm``) so that the CPU aggregates it in 16 bits like plain ``sgm``."""
     from stereonet.matchers.local import sgm
 
     if not 0.0 <= learned_weight <= 1.0:

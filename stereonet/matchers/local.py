@@ -90,6 +90,10 @@ _BACK_END = from_opencv_names(BM_DEFAULTS)  # the same defaults in the back end'
 # census 7x7 (48 bits, pixelwise), P1 = 2 and P2 = 48 Hamming bits with P2 lowered across intensity edges
 # (P2 / (1 + 20 |dI|), dI in [0, 1], never below P1), 8 paths, parabola, uniqueness 5 %, LR tolerance 1 px,
 # 3x3 median over valid pixels, speckles < 100 px (steps <= 1 px) removed.
+# A cost mixed into sgm's census (``extra_cost``, siamese-census-sgm) is rounded to this grid (bits) in every
+# backend, so that the CPU aggregates it in 16-bit fixed point like plain census (quarter bits: 4 * 49 < 256)
+MIX_STEP = 0.25
+
 SGM_DEFAULTS = dict(cost="census", census_window=7, block_size=1, P1=2.0, P2=48.0, p2_alpha=20.0, paths=8,
                     subpixel="parabola", uniqueness_ratio=5, disp12_max_diff=1, median=3, speckle_window=100,
                     speckle_range=1, fill=False)
@@ -183,14 +187,40 @@ bm_adaptive = _bm("bm-adaptive", "adaptive", 7,
                   "Block matching, SAD over 5 shiftable 7x7 windows (centre + best 2 corners), LR check")
 
 
-def _mixed_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: torch.Tensor):
+def _hwd(other: torch.Tensor, i: int) -> np.ndarray:
+    """Item ``i`` of a (B, D, H, W) volume as a contiguous float32 (H, W, D) array (no copy for a view of a
+    (B, H, W, D) buffer, as the numba Siamese cost returns)."""
+    return np.ascontiguousarray(other[i].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
+
+
+def _mixed_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: torch.Tensor,
+               mix_step: float | None = None):
     """``w_own * own[i] + w_extra * other[i]`` per image as (H, W, D) float32 (``other``: (B, D, H, W)), one
-    image at a time (a generator, as :func:`~stereonet.aggregate.sgm.sgm_aggregate_hwd` consumes it)."""
+    image at a time (a generator, as :func:`~stereonet.aggregate.sgm.sgm_aggregate_hwd` consumes it); rounded
+    to the ``mix_step`` grid unless it is None (the torch expression's numbers either way)."""
     from stereonet.kernels.cost import mix_costs_hwd
 
     for i, vol in enumerate(own):
-        o = np.ascontiguousarray(other[i].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy())
-        yield mix_costs_hwd(vol, o, np.float32(w_own), np.float32(w_extra))
+        out = mix_costs_hwd(vol, _hwd(other, i), np.float32(w_own), np.float32(w_extra))
+        if mix_step is not None:
+            q = np.float32(1.0 / mix_step)
+            out = np.multiply(np.rint(np.multiply(out, q, out=out), out=out), np.float32(mix_step), out=out)
+        yield out
+
+
+def _mixed_u8_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: torch.Tensor,
+                  q: float) -> list[np.ndarray] | None:
+    """``rint(q * (w_own * own[i] + w_extra * other[i]))`` per image as uint8 (H, W, D) (the mixed cost in
+    units of ``1 / q``), or None when a value falls outside 0..255 (then the float32 kernel runs)."""
+    from stereonet.kernels.cost import mix_costs_u8_hwd
+
+    out = []
+    for i, vol in enumerate(own):
+        mixed, fits = mix_costs_u8_hwd(vol, _hwd(other, i), np.float32(w_own), np.float32(w_extra), np.float32(q))
+        if not fits:
+            return None
+        out.append(mixed)
+    return out
 
 
 @register("sgm", kind="classical",
@@ -211,6 +241,11 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     Census costs are integers, so ``P1`` and the edge-adapted ``P2`` are rounded to multiples of
     :data:`~stereonet.aggregate.sgm.CENSUS_PENALTY_STEP` (1/16 bit) in every backend; the CPU fast path then
     aggregates in int16 (exact, OpenCV's SGBM also aggregates in 16 bits) and selects from it directly.
+    ``extra_cost=(w_own, w_extra, V)`` mixes a volume ``V`` (B, D, H, W) into the census cost
+    (``w_own * census + w_extra * V``, siamese-census-sgm); the mix is rounded to ``mix_step`` bits
+    (:data:`MIX_STEP`, a power of two; None = unrounded, float32 kernel) in every backend, which lets the CPU
+    run the same 16-bit path on it (uint8 in units of ``mix_step``; a mix outside 0..255 units falls back to
+    the float32 kernel, same numbers).
     """
     opts = from_opencv_names({**SGM_DEFAULTS, **options})
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
@@ -221,6 +256,12 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         cost_opts.pop("census_window", None)
     # the registry validated left/right: no second check of the images
     extra = cost_opts.pop("extra_cost", None)
+    mix_step = cost_opts.pop("mix_step", MIX_STEP)
+    from stereonet.kernels.sgm import grid_scale  # (numba loads with the first kernel, not with the package)
+
+    if mix_step is not None and (not isinstance(mix_step, (int, float)) or isinstance(mix_step, bool)
+                                 or not 0 < mix_step <= 1 or grid_scale(float(mix_step)) is None):
+        raise StereoInputError(f"mix_step: expected None or 1 / 2^k (1, 0.5, 0.25, ...), got {mix_step!r}")
     census_window = cost_opts.get("census_window", 5)
     # census costs are integers (Hamming bits): penalties on a 1/16-bit grid make the recurrence exact in
     # 16-bit fixed point (the same result in every backend; aggregate.sgm module doc). A mixed-in cost is in
@@ -236,6 +277,25 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
         bits = census_window * census_window  # >= every census distance and the out-of-image fill
         s = None if extra is not None or keep_volume else fixed_point_scale_for(P1, P2, directions, step, bits)
+        if extra is not None and mix_step is not None and not keep_volume:
+            # the mixed cost on the mix_step grid as uint8 in units of mix_step: the same 16-bit path with the
+            # penalties in those units (exact scalings by a power of two), selected in cost units again
+            q = 1.0 / mix_step
+            mixed = _mixed_u8_hwd(vols, *extra, q)
+            if mixed is not None:
+                sq = fixed_point_scale_for(P1 * q, P2 * q, directions, step * q, 255)
+                if sq is not None:
+                    del vols
+                    accs = [sgm_aggregate_fixed_hwd(v, P1 * q, P2 * q, directions, left[i], p2_alpha, step * q, sq)
+                            for i, v in enumerate(mixed)]
+                    del mixed
+                    selection, confidence = select_disparity_confidence_fixed(
+                        accs, int(sq * q), back.pop("subpixel"), back.pop("uniqueness"), back.pop("lr_tol"),
+                        left.dtype, left.device)
+                    del accs
+                    out = _filter(selection, None, **back)
+                    out.confidence = confidence * out.valid.to(confidence.dtype)
+                    return out
         if s is not None:
             # 16-bit fixed point: select straight from the int16 aggregate (no float32 volume)
             accs = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step, s)
@@ -248,7 +308,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
             out.confidence = confidence * out.valid.to(confidence.dtype)
             return out
         if extra is not None:
-            vols = _mixed_hwd(vols, *extra)
+            vols = _mixed_hwd(vols, *extra, mix_step)
         agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step).to(left.device)
         del vols
     else:
@@ -256,6 +316,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         if extra is not None:  # (w_own, w_extra, volume): a learned cost mixed in (siamese-census-sgm)
             w_own, w_extra, other = extra
             vol = w_own * vol + w_extra * other.to(vol)
+            if mix_step is not None:  # on the mix_step grid, as the CPU's 16-bit path
+                vol = torch.round(vol * (1.0 / mix_step)) * mix_step
         agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, penalty_step=step)
         del vol
     # selection and the cost margin of the aggregated cost in one pass over it (select_and_filter +

@@ -21,6 +21,7 @@ from stereonet.aggregate.sgm import (
     sgm_aggregate,
     sgm_aggregate_torch,
 )
+from stereonet.checks import StereoInputError
 from stereonet.cost import build_cost_volume
 from stereonet.kernels.block import ROW_BLOCK
 from stereonet.kernels.sgm import fixed_point_scale, fixed_to_float, sgm_fixed_hwd, sgm_numba_hwd
@@ -265,20 +266,53 @@ def test_feature_cost_kernel_equals_torch(b, f, h, w, max_disp):
     assert torch.isnan(siamese_cost_volume(fl_nan, fr, max_disp, backend="numba")[0, :3, 1, 2]).all()
 
 
-def test_sgm_with_a_mixed_in_volume_fast_path_equals_float_path():
-    """``sgm(extra_cost=(a, b, V))`` (siamese-census-sgm's cost): the uint8 census + numba mix path gives the
-    same aggregated cost and maps as the float32 volume path (census volume built by torch, mixed by torch)."""
+def _mixed_pair(scale: float = 2.0):
     g = torch.Generator().manual_seed(5)
     h, w, max_disp = ROW_BLOCK + 5, 47, 16
     big = torch.rand(1, 3, h, w + 5, generator=g)
     left, right = big[..., 5:].contiguous(), big[..., :w].contiguous()
-    other = torch.rand(1, max_disp + 1, h, w, generator=g) * 2.0
-    fast = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other))
-    slow = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), backend="torch")
+    return left, right, max_disp, torch.rand(1, max_disp + 1, h, w, generator=g) * scale
+
+
+@pytest.mark.parametrize("mix_step", [0.25, None])
+def test_sgm_with_a_mixed_in_volume_fast_path_equals_float_path(mix_step):
+    """``sgm(extra_cost=(a, b, V))`` (siamese-census-sgm's cost): the uint8 census + numba mix path gives the
+    same aggregated cost and maps as the float32 volume path (census volume built by torch, mixed by torch),
+    with the mixed cost rounded to quarter bits (the default) and unrounded."""
+    left, right, max_disp, other = _mixed_pair()
+    opts = dict(extra_cost=(0.25, 18.0, other), mix_step=mix_step, keep_volume=True)
+    fast = matchers.match("sgm", left, right, max_disp, **opts)
+    slow = matchers.match("sgm", left, right, max_disp, **opts, backend="torch")
     torch.testing.assert_close(fast.cost_volume, slow.cost_volume, rtol=1e-6, atol=1e-3)
     assert torch.equal(fast.valid, slow.valid) and torch.equal(fast.disparity, slow.disparity)
     plain = matchers.match("sgm", left, right, max_disp, keep_volume=True)
     assert not torch.equal(plain.cost_volume, fast.cost_volume)  # the mixed-in volume was used
+    if mix_step is not None:  # the rounded cost: every aggregated value on the 1/16-bit grid (exact float sums)
+        assert torch.equal(fast.cost_volume * 16, torch.round(fast.cost_volume * 16))
+
+
+@pytest.mark.parametrize("scale", [2.0, 40.0])
+def test_sgm_mixed_16_bit_path_equals_float32_kernel(scale):
+    """The default CPU path of a mixed-in cost (quarter-bit uint8, int16 aggregation, selection from it) gives
+    the very maps and confidence of the float32 kernel on the same rounded cost (exact sums on the grid), and
+    a cost too large for uint8 (scale 40: up to 4 * 18 * 40 quarter bits) falls back to that kernel."""
+    left, right, max_disp, other = _mixed_pair(scale)
+    fast = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other))
+    ref = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), keep_volume=True)
+    slow = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), backend="torch")
+    assert (fast.cost_volume is None) == (scale == 2.0)  # the 16-bit path keeps no float volume
+    for out in (ref, slow):
+        assert torch.equal(fast.disparity, out.disparity) and torch.equal(fast.valid, out.valid)
+    torch.testing.assert_close(fast.confidence, ref.confidence, rtol=0, atol=1e-6)
+    unrounded = matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), mix_step=None)
+    assert not torch.equal(unrounded.disparity, fast.disparity)  # the rounding is real (sub-pixel values move)
+
+
+@pytest.mark.parametrize("bad", [0.3, 2.0, "quarter", 0.0])
+def test_sgm_mix_step_must_be_a_power_of_two_grid(bad):
+    left, right, max_disp, other = _mixed_pair()
+    with pytest.raises(StereoInputError, match="mix_step"):
+        matchers.match("sgm", left, right, max_disp, extra_cost=(0.25, 18.0, other), mix_step=bad)
 
 
 @pytest.mark.parametrize("alpha", [0.0, 20.0])
