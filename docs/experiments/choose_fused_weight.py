@@ -2,8 +2,8 @@
 import functools
 import sys
 
-import data_gen
-from stereonet.data import _SyntheticItems
+from val_sets import load
+
 from stereonet.evaluation import format_table, run_evaluation
 from stereonet.matchers import register
 from stereonet.matchers.learned import siamese_census_sgm_matcher
@@ -23,14 +23,6 @@ for a in alphas:
     n = f"fused{a}"
     register(n, kind="learned", description="exp")(functools.partial(fused, a=a))
     methods.append(n)
-
-def load(spec):
-    if spec == "val2":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5150, difficulty=2), spec)
-    if spec == "val4":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5151, difficulty=4), spec)
-    from stereonet.data import load_dataset
-    return load_dataset(spec)
 
 ev = run_evaluation(methods, specs, fill=True, progress=False, load=load,
                     options={"siamese-sgm": {"checkpoint": ckpt}})

@@ -7,8 +7,8 @@ choose_fused_weight.py, then the real pairs (evaluation only).
 import functools
 import sys
 
-import data_gen
-from stereonet.data import _SyntheticItems, load_dataset
+from val_sets import load
+
 from stereonet.evaluation import format_table, run_evaluation
 from stereonet.matchers import register
 from stereonet.matchers.learned import siamese_census_sgm_matcher
@@ -16,14 +16,6 @@ from stereonet.matchers.learned import siamese_census_sgm_matcher
 specs = sys.argv[1].split(";") if len(sys.argv) > 1 else ["val2", "val4"]
 for name, step in [("mix-quarter-bits", 0.25), ("mix-float32", None)]:
     register(name, kind="learned", description="exp")(functools.partial(siamese_census_sgm_matcher, mix_step=step))
-
-
-def load(spec):
-    if spec == "val2":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5150, difficulty=2), spec)
-    if spec == "val4":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5151, difficulty=4), spec)
-    return load_dataset(spec)
 
 
 ev = run_evaluation(["mix-quarter-bits", "mix-float32"], specs, fill=True, progress=False, load=load)
