@@ -13,6 +13,7 @@ import torch
 
 from data_gen import Camera
 from stereonet.checks import StereoInputError, check_finite, check_shape
+from stereonet.geometry.camera import back_project
 
 
 def plane_to_camera(normal_world: torch.Tensor, offset_world: torch.Tensor,
@@ -95,10 +96,10 @@ def depth_to_points(depth: torch.Tensor, valid: torch.Tensor, K: torch.Tensor,
         v, u = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
                               indexing="ij")
         uv = torch.stack([u, v], dim=-1)
-    uv1 = torch.cat([uv.to(torch.float64), torch.ones_like(uv[..., :1], dtype=torch.float64)], dim=-1)
-    rays = uv1 @ torch.linalg.inv(torch.as_tensor(K, dtype=torch.float64)).T
-    pts = rays * depth.to(torch.float64)[..., None]
-    return pts[valid]
+    if not bool(valid.any()):  # (back_project wants at least one point)
+        return torch.zeros((0, 3), dtype=torch.float64)
+    return back_project(uv.to(torch.float64)[valid], torch.as_tensor(K, dtype=torch.float64),
+                        depth.to(torch.float64)[valid])
 
 
 def reject_depth_edges(depth: torch.Tensor, valid: torch.Tensor, max_relative_jump: float = 0.03
