@@ -241,11 +241,11 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     Census costs are integers, so ``P1`` and the edge-adapted ``P2`` are rounded to multiples of
     :data:`~stereonet.aggregate.sgm.CENSUS_PENALTY_STEP` (1/16 bit) in every backend; the CPU fast path then
     aggregates in int16 (exact, OpenCV's SGBM also aggregates in 16 bits) and selects from it directly.
-    ``extra_cost=(w_own, w_extra, V)`` mixes a volume ``V`` (B, D, H, W) into the census cost
-    (``w_own * census + w_extra * V``, siamese-census-sgm); the mix is rounded to ``mix_step`` bits
+    ``extra_cost=(w_own, w_extra, V)`` mixes a volume ``V`` (B, D, H, W) into the cost (``w_own * cost +
+    w_extra * V``; siamese-census-sgm on census). With census the mix is rounded to ``mix_step`` bits
     (:data:`MIX_STEP`, a power of two; None = unrounded, float32 kernel) in every backend, which lets the CPU
     run the same 16-bit path on it (uint8 in units of ``mix_step``; a mix outside 0..255 units falls back to
-    the float32 kernel, same numbers).
+    the float32 kernel, same numbers); other costs are mixed unrounded.
     """
     opts = from_opencv_names({**SGM_DEFAULTS, **options})
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
@@ -262,6 +262,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     if mix_step is not None and (not isinstance(mix_step, (int, float)) or isinstance(mix_step, bool)
                                  or not 0 < mix_step <= 1 or grid_scale(float(mix_step)) is None):
         raise StereoInputError(f"mix_step: expected None or 1 / 2^k (1, 0.5, 0.25, ...), got {mix_step!r}")
+    if cost_name != "census":
+        mix_step = None  # a grid in Hamming bits: other costs (not integers) are mixed unrounded
     census_window = cost_opts.get("census_window", 5)
     # census costs are integers (Hamming bits): penalties on a 1/16-bit grid make the recurrence exact in
     # 16-bit fixed point (the same result in every backend; aggregate.sgm module doc). A mixed-in cost is in

@@ -308,6 +308,16 @@ def test_sgm_mixed_16_bit_path_equals_float32_kernel(scale):
     assert not torch.equal(unrounded.disparity, fast.disparity)  # the rounding is real (sub-pixel values move)
 
 
+def test_sgm_mix_step_rounds_only_census_costs():
+    """The quarter-bit grid is in Hamming bits: a mix into another cost (SAD, in [0, 1]) stays unrounded."""
+    left, right, max_disp, other = _mixed_pair()
+    opts = dict(cost="sad", P1=0.05, P2=0.6, keep_volume=True, extra_cost=(0.5, 0.1, other))
+    rounded = matchers.match("sgm", left, right, max_disp, **opts)
+    plain = matchers.match("sgm", left, right, max_disp, **opts, mix_step=None)
+    assert torch.equal(rounded.cost_volume, plain.cost_volume)
+    assert not torch.equal(rounded.cost_volume * 16, torch.round(rounded.cost_volume * 16))
+
+
 @pytest.mark.parametrize("bad", [0.3, 2.0, "quarter", 0.0])
 def test_sgm_mix_step_must_be_a_power_of_two_grid(bad):
     left, right, max_disp, other = _mixed_pair()
