@@ -4,21 +4,12 @@ choose_fused_weight.py, then the real pairs (evaluation only).
 
     python docs/experiments/mix_step_validation.py [SPECS]     (default "val2;val4"; e.g. "real")
 """
-import functools
 import sys
 
-from val_sets import load
+from val_sets import compare
 
-from stereonet.evaluation import format_table, run_evaluation
-from stereonet.matchers import register
 from stereonet.matchers.learned import siamese_census_sgm_matcher
 
 specs = sys.argv[1].split(";") if len(sys.argv) > 1 else ["val2", "val4"]
-for name, step in [("mix-quarter-bits", 0.25), ("mix-float32", None)]:
-    register(name, kind="learned", description="exp")(functools.partial(siamese_census_sgm_matcher, mix_step=step))
-
-
-ev = run_evaluation(["mix-quarter-bits", "mix-float32"], specs, fill=True, progress=False, load=load)
-print(format_table(ev.rows))
-for p in ev.pairs:
-    print("PAIR", p.method, p.dataset, p.pair, None if p.metrics is None else round(p.metrics["bad2"], 3))
+compare({"mix-quarter-bits": (siamese_census_sgm_matcher, {"mix_step": 0.25, "precision": "float32"}),
+         "mix-float32": (siamese_census_sgm_matcher, {"mix_step": None, "precision": "float32"})}, specs)

@@ -67,16 +67,32 @@ class NetworkGraph(nn.Module):
         self.stride: int = int(getattr(net, "stride", 1))
         self.dtype: torch.dtype = next(net.parameters()).dtype
 
-    def _net_on(self, device: torch.device) -> nn.Module:
-        """The network on ``device`` (the loaded one lives on the CPU; other devices get one copy each)."""
-        if next(self.net.parameters()).device == device:
+    def _net_on(self, device: torch.device, dtype: torch.dtype | None = None) -> nn.Module:
+        """The network on ``device``, with weights in ``dtype`` (default: as loaded). The loaded one lives on the
+        CPU; every other (device, dtype) gets one copy, made the first time it is asked for."""
+        first = next(self.net.parameters())
+        if first.device == device and dtype in (None, first.dtype):
             return self.net
         copies = self.__dict__.setdefault("_copies", {})
-        if device not in copies:
+        if (device, dtype) not in copies:
             import copy
 
-            copies[device] = copy.deepcopy(self.net).to(device)
-        return copies[device]
+            net = copy.deepcopy(self.net).to(device=device)
+            if self.network == "siamese":
+                net = net.to(memory_format=torch.channels_last)
+                if dtype is not None:
+                    net.with_tower_dtype(dtype)
+            elif dtype is not None:
+                net = net.to(dtype=dtype)
+            copies[device, dtype] = net
+        return copies[device, dtype]
+
+    def features(self, images: torch.Tensor, dtype: torch.dtype | None = None) -> tuple[torch.Tensor]:
+        """The ``siamese`` graph with its convolutions in ``dtype`` (default: the weights'; a bfloat16 copy of the
+        weights is made once). Not in :meth:`forward`: the ONNX exporter would trace the extra argument."""
+        if self.network != "siamese":
+            raise StereoInputError(f"dtype: only the 'siamese' network runs in another dtype, not {self.network!r}")
+        return (self._net_on(images.device, dtype)(images),)
 
     def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         net = self._net_on(inputs[0].device)  # follow the input's device, as every matcher does

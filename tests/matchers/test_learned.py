@@ -110,3 +110,37 @@ def test_register_checkpoint_variant_runs_the_method_with_those_weights(monkeypa
     right = torch.roll(left, -2, dims=-1)
     assert torch.equal(matchers.match("mine", left, right, 8).disparity,
                        matchers.match("siamese", left, right, 8, checkpoint=str(ckpt)).disparity)
+
+
+def test_siamese_precision_option(weights):
+    """precision: the bfloat16 tower gives float32 unit features close to the float32 tower's, and the
+    matchers' disparities agree on almost every pixel; bad values and bfloat16 on ONNX are one-line errors."""
+    from stereonet.matchers.learned import load_network
+    from stereonet.models.graphs import NetworkGraph
+    from stereonet.models.siamese import tower_dtype
+
+    assert tower_dtype("float32") == torch.float32 and tower_dtype("bfloat16") == torch.bfloat16
+    assert tower_dtype("auto", "meta") == torch.float32  # not a CPU: float32
+    with pytest.raises(StereoInputError, match="precision: expected one of 'auto', 'float32', 'bfloat16'"):
+        tower_dtype("half")
+    graph = NetworkGraph("siamese", load_network("siamese", weights["siamese"]))
+    images = torch.rand(2, 3, 41, 67, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        (f32,) = graph(images)
+        (b16,) = graph.features(images, torch.bfloat16)
+    assert b16.dtype == torch.float32 and b16.shape == f32.shape == (2, 8, 41, 67)
+    assert torch.allclose(b16.norm(dim=1), torch.ones(2, 41, 67), atol=1e-5)
+    error = float((b16 - f32).abs().max())
+    assert 0 < error < 0.05  # really bfloat16 arithmetic, and close
+    with pytest.raises(StereoInputError, match="dtype: only the 'siamese' network"):
+        NetworkGraph("dispnet", load_network("dispnet", weights["dispnet"])).features(images, torch.bfloat16)
+    big = torch.rand(1, 3, 48, 120, generator=torch.Generator().manual_seed(2))
+    left, right = big[..., 12:108].contiguous(), big[..., 18:114].contiguous()  # disparity 6 everywhere
+    a = match("siamese-sgm", left, right, 16, checkpoint=str(weights["siamese"]), precision="float32")
+    b = match("siamese-sgm", left, right, 16, checkpoint=str(weights["siamese"]), precision="bfloat16")
+    assert float(((a.disparity - b.disparity).abs() > 0.5).float().mean()) < 0.02
+    with pytest.raises(StereoInputError, match="precision: expected"):
+        match("siamese", left, right, 16, checkpoint=str(weights["siamese"]), precision="fp8")
+    pytest.importorskip("onnxruntime", reason="onnxruntime (optional extra) is not installed")
+    with pytest.raises(StereoInputError, match="precision: 'bfloat16' runs on backend='torch' only"):
+        match("siamese", left, right, 16, checkpoint=str(weights["siamese"]), backend="onnx", precision="bfloat16")
