@@ -39,6 +39,7 @@ from stereonet.evaluation import (
     run_evaluation,
     safe_name,
 )
+from stereonet.measure import reuse_freed_memory
 
 PROG = "scripts/bench.py"
 REPO = Path(__file__).resolve().parents[1]
@@ -342,6 +343,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import time
 
     args = build_parser().parse_args(argv)
+    reuse_freed_memory()  # as infer.py and eval.py do (stereonet.measure)
     try:
         skipped: list[str] = []
         methods = parse_methods(args.methods, skipped)

@@ -42,6 +42,25 @@ def release_free_memory() -> None:
         _LIBC.malloc_trim(0)
 
 
+_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4  # glibc's mallopt parameters (malloc.h)
+
+
+def reuse_freed_memory() -> bool:
+    """Have glibc serve every allocation from its heap and keep freed heap memory for the next allocation
+    (``mallopt``: no ``mmap`` allocations, no automatic trimming); True where applied (glibc), else False.
+
+    By default glibc maps each block over 32 MiB (a cost volume, a feature map) afresh and unmaps it when
+    freed, so every such buffer is paid again in page faults and in the kernel zeroing its pages: on Cones
+    that was about a quarter of ``siamese-census-sgm``'s CPU time (the model card, thirteenth session).
+    Process-wide and not undone, so the library leaves it to its programs: ``infer.py``, ``eval.py`` and
+    the benchmarks call it first. Memory freed by one call then stays resident for the next one (the peak
+    is the same; :func:`release_free_memory` still hands it back, and :class:`PeakMemory` does so first).
+    """
+    if _LIBC is None or not hasattr(_LIBC, "mallopt"):
+        return False
+    return bool(_LIBC.mallopt(_M_MMAP_MAX, 0)) and bool(_LIBC.mallopt(_M_TRIM_THRESHOLD, 2 ** 31 - 1))
+
+
 def rss_bytes() -> int:
     """Current resident set size of this process in bytes (0 where /proc is missing)."""
     try:

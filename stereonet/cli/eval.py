@@ -62,6 +62,7 @@ from stereonet.evaluation import (  # noqa: F401 - the engine (a library module)
     run_evaluation,
     write_json,
 )
+from stereonet.measure import reuse_freed_memory
 
 PROG = "eval.py"
 
@@ -92,6 +93,7 @@ def build_parser() -> OneLineParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    reuse_freed_memory()  # large buffers from the heap, reused instead of mapped afresh (stereonet.measure)
     try:
         skipped: list[str] = []
         methods = parse_methods(args.methods, skipped)

@@ -45,6 +45,7 @@ import torch
 
 from stereonet.checks import StereoInputError
 from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail, weights_available
+from stereonet.measure import reuse_freed_memory
 from stereonet.tiling import DEFAULT_BUDGET_MIB
 
 PROG = "infer.py"
@@ -715,6 +716,7 @@ def _publish(tmp: Path, out: Path) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    reuse_freed_memory()  # large buffers from the heap, reused instead of mapped afresh (stereonet.measure)
     try:
         pairs, method, options, calib, device = _prepare(args)
     except USER_ERRORS as e:
