@@ -21,7 +21,7 @@ from dataclasses import fields, replace
 import torch
 
 from stereonet.checks import StereoInputError
-from stereonet.measure import PeakMemory
+from stereonet.measure import PeakMemory, release_free_memory
 from stereonet.types import StereoOutput
 
 # fits an 8 GB laptop beside the rest of the process (and a browser); measured with scripts/bench_large.py, sgm on
@@ -111,5 +111,8 @@ def match_with_budget(fn: Callable[..., StereoOutput], left: torch.Tensor, right
                                     f"{need:.0f} MiB")
     strips = plan_strips(h, int(rows_per_strip), overlap)
     info.update(strips=len(strips), rows_per_strip=int(rows_per_strip), overlap=overlap)
-    return _concat([_rows_of(fn(left[..., y0:y1, :], right[..., y0:y1, :], max_disp), top, bottom)
-                    for y0, y1, top, bottom in strips])
+    parts = []
+    for y0, y1, top, bottom in strips:
+        release_free_memory()  # what the last strip freed goes back (a heap that keeps freed memory: measure)
+        parts.append(_rows_of(fn(left[..., y0:y1, :], right[..., y0:y1, :], max_disp), top, bottom))
+    return _concat(parts)
