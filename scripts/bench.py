@@ -270,7 +270,8 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
         "as errors), EPE and SEE (SMD-Nets soft edge error on depth discontinuities) are in pixels; `noc` = "
         "non-occluded pixels (datasets with an occlusion mask). `Mde/s` is million disparity evaluations (W x H x (max_disp + 1)) per second, the median over pairs; `× sgbm time` and `÷ sgbm bad-2` are ratios to "
         f"`{REFERENCE}` medians on the same pairs; peak MiB is the extra resident memory of one call (see "
-        f"`stereonet/measure.py`). Rows are sorted by bad-2, methods that ran on every pair first; the bad-2 "
+        f"`stereonet/measure.py`; freed memory is handed back before each call, and glibc keeps large freed buffers "
+        f"for reuse inside it, as in infer.py: `reuse_freed_memory`). Rows are sorted by bad-2, methods that ran on every pair first; the bad-2 "
         f"ratio of a method that skipped pairs compares it with opencv-sgbm on the pairs it ran. {caps}",
         "",
     ]
