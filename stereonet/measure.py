@@ -51,10 +51,12 @@ def reuse_freed_memory() -> bool:
 
     By default glibc maps each block over 32 MiB (a cost volume, a feature map) afresh and unmaps it when
     freed, so every such buffer is paid again in page faults and in the kernel zeroing its pages: on Cones
-    that was about a quarter of ``siamese-census-sgm``'s CPU time (the model card, thirteenth session).
+    that was a third of ``siamese-census-sgm``'s CPU time (the model card, thirteenth session).
     Process-wide and not undone, so the library leaves it to its programs: ``infer.py``, ``eval.py`` and
-    the benchmarks call it first. Memory freed by one call then stays resident for the next one (the peak
-    is the same; :func:`release_free_memory` still hands it back, and :class:`PeakMemory` does so first).
+    the benchmarks call it first. The price: freed memory stays resident until reused, so a call's peak can
+    be higher (a freed block too small for a later request is kept beside it; ``siamese-census-sgm`` on
+    Cones 101 -> 165 MiB). :func:`release_free_memory` hands it back: :class:`PeakMemory` does so first, and
+    the strips of :func:`stereonet.tiling.match_with_budget` do so one by one.
     """
     if _LIBC is None or not hasattr(_LIBC, "mallopt"):
         return False

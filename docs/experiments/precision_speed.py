@@ -12,8 +12,10 @@ import numba
 import torch
 
 from stereonet import matchers
+from stereonet.measure import reuse_freed_memory
 from stereonet.models.siamese import native_bfloat16
 
+reuse_freed_memory()  # as infer.py and eval.py
 torch.set_num_threads(1)
 numba.set_num_threads(1)
 cv2.setNumThreads(1)
