@@ -29,9 +29,8 @@ from pathlib import Path
 import torch
 
 from stereonet import matchers, metrics
-from stereonet.cli.common import PeakMemory
+from stereonet.cli.common import PeakMemory, add_malloc_argument, apply_malloc_argument
 from stereonet.io.atomic import atomic_write_text
-from stereonet.measure import reuse_freed_memory
 from stereonet.select.fill import fill_occlusions
 
 BM = ["bm-sad", "bm-ssd", "bm-zsad", "bm-lssad", "bm-ncc", "bm-census", "bm-adaptive"]
@@ -97,12 +96,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cpu", action="store_true",
                    help="one thread everywhere (torch, numba, OpenCV) and CPU seconds (process_time) instead of "
                         "wall seconds: work ratios that a busy machine distorts much less than wall-time ratios")
-    p.add_argument("--malloc", choices=("reuse", "default"), default="reuse",
-                   help="'reuse': glibc keeps large freed buffers for reuse, as infer.py and eval.py set it "
-                        "(stereonet.measure.reuse_freed_memory); 'default': glibc's own mmap/unmap per buffer")
+    add_malloc_argument(p)
     args = p.parse_args(argv)
-    if args.malloc == "reuse":
-        reuse_freed_memory()
+    apply_malloc_argument(args)
     torch.set_num_threads(1 if args.cpu else 2)
     clock = time.perf_counter
     if args.cpu:

@@ -21,8 +21,9 @@ import time
 import torch
 
 from stereonet import matchers
+from stereonet.cli.common import add_malloc_argument, apply_malloc_argument
 from stereonet.io.atomic import atomic_write_text
-from stereonet.measure import PeakMemory, reuse_freed_memory
+from stereonet.measure import PeakMemory
 from stereonet.tiling import DEFAULT_BUDGET_MIB, match_with_budget
 
 SIZES = {"6mp": (2000, 2964, 255), "16mp": (3456, 4608, 255)}
@@ -77,12 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--budget", type=float, default=DEFAULT_BUDGET_MIB, help="MiB, as infer.py --memory-budget")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", default=None)
-    p.add_argument("--malloc", choices=("reuse", "default"), default="reuse",
-                   help="'reuse': glibc keeps large freed buffers for reuse, as infer.py and eval.py set it "
-                        "(stereonet.measure.reuse_freed_memory); 'default': glibc's own mmap/unmap per buffer")
+    add_malloc_argument(p)
     args = p.parse_args(argv)
-    if args.malloc == "reuse":
-        reuse_freed_memory()
+    apply_malloc_argument(args)
     import cv2
     import numba
 

@@ -10,10 +10,17 @@ from typing import NoReturn
 
 from stereonet.checks import StereoInputError
 from stereonet.matchers import weights_available
-from stereonet.measure import PeakMemory, Stopwatch, max_rss_bytes, release_free_memory, rss_bytes
+from stereonet.measure import (
+    PeakMemory,
+    Stopwatch,
+    max_rss_bytes,
+    release_free_memory,
+    reuse_freed_memory,
+    rss_bytes,
+)
 
-__all__ = ["USER_ERRORS", "OneLineParser", "PeakMemory", "Stopwatch", "fail", "max_rss_bytes",
-           "release_free_memory", "rss_bytes", "weights_available"]
+__all__ = ["USER_ERRORS", "OneLineParser", "PeakMemory", "Stopwatch", "add_malloc_argument", "apply_malloc_argument",
+           "fail", "max_rss_bytes", "release_free_memory", "reuse_freed_memory", "rss_bytes", "weights_available"]
 
 # Errors that come from the user's input: bad arguments, specs, names or file contents (StereoInputError,
 # which every check of a public function raises) and file-system errors: one line, exit code 2. Anything else
@@ -27,6 +34,20 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def add_malloc_argument(parser: argparse.ArgumentParser) -> None:
+    """``--malloc reuse|default`` for the benchmarks: :func:`apply_malloc_argument` then sets glibc as infer.py and
+    eval.py do (:func:`stereonet.measure.reuse_freed_memory`) or leaves glibc's own mmap/unmap per buffer."""
+    parser.add_argument("--malloc", choices=("reuse", "default"), default="reuse",
+                        help="'reuse': glibc keeps large freed buffers for reuse, as infer.py and eval.py set it "
+                             "(stereonet.measure.reuse_freed_memory); 'default': glibc's own mmap/unmap per buffer")
+
+
+def apply_malloc_argument(args: argparse.Namespace) -> None:
+    """Act on :func:`add_malloc_argument`'s option."""
+    if args.malloc == "reuse":
+        reuse_freed_memory()
 
 
 def fail(prog: str, message: object, code: int = 2) -> int:

@@ -77,13 +77,9 @@ class NetworkGraph(nn.Module):
         if (device, dtype) not in copies:
             import copy
 
-            net = copy.deepcopy(self.net).to(device=device)
-            if self.network == "siamese":
-                net = net.to(memory_format=torch.channels_last)
-                if dtype is not None:
-                    net.with_tower_dtype(dtype)
-            elif dtype is not None:
-                net = net.to(dtype=dtype)
+            net = copy.deepcopy(self.net).to(device=device)  # (copies keep the channels-last weights)
+            if dtype is not None:
+                net = net.with_tower_dtype(dtype) if self.network == "siamese" else net.to(dtype=dtype)
             copies[device, dtype] = net
         return copies[device, dtype]
 
