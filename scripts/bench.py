@@ -143,6 +143,53 @@ def headline(rows: Sequence[dict], groups: Sequence[str]) -> list[str]:
     return lines + [""]
 
 
+BLOCK_REFERENCE = "opencv-bm"  # the counterpart of the local block matchers (bm-*); every other method: REFERENCE
+
+
+def counterpart(method: str) -> str:
+    """The OpenCV method a method's time is held against: ``opencv-bm`` for the block matchers, else opencv-sgbm."""
+    return BLOCK_REFERENCE if method.startswith("bm-") else REFERENCE
+
+
+def counterpart_ratios(ev: Evaluation, groups: dict[str, list[str]]) -> list[dict]:
+    """Per (method, group): the median and the largest over pairs of ``seconds / seconds of its counterpart``
+    (:func:`counterpart`) on the same pair in the same run (one process, the same moment's load)."""
+    methods = [m for m in dict.fromkeys(p.method for p in ev.pairs) if m not in (REFERENCE, BLOCK_REFERENCE)]
+    rows = []
+    for group, datasets in groups.items():
+        for m in methods:
+            sel = [p for p in _latest_run(ev.pairs, m) if p.dataset in datasets and p.metrics is not None]
+            if not sel:
+                continue
+            ref_name, run = counterpart(m), getattr(sel[0], "run", 0)
+            ref = {(p.dataset, p.pair): p.seconds for p in ev.pairs if p.method == ref_name and p.dataset in datasets
+                   and getattr(p, "run", 0) == run and p.metrics is not None and p.seconds > 0}
+            ratios = [p.seconds / ref[(p.dataset, p.pair)] for p in sel if (p.dataset, p.pair) in ref]
+            if ratios:
+                rows.append({"method": m, "group": group, "reference": ref_name, "pairs": len(ratios),
+                             "median": float(np.median(ratios)), "worst": float(max(ratios))})
+    return rows
+
+
+def counterpart_table(rows: Sequence[dict], groups: Sequence[str]) -> list[str]:
+    """Markdown lines of :func:`counterpart_ratios`: one row per method, median and worst pair per group."""
+    if not rows:
+        return []
+    head = "| method | against | " + " | ".join(f"{g}: median × | {g}: worst pair ×" for g in groups) + " |"
+    lines = ["## Time against the OpenCV counterpart", "",
+             "CPU time of each call over its OpenCV counterpart's on the same pair in the same run: "
+             f"`{BLOCK_REFERENCE}` for the block matchers (`bm-*`), `{REFERENCE}` for the others; the median over "
+             "pairs and the worst pair.", "", head, "|" + "---|" * (head.count("|") - 1)]
+    by = {(r["method"], r["group"]): r for r in rows}
+    for m in dict.fromkeys(r["method"] for r in rows):
+        cells = []
+        for g in groups:
+            r = by.get((m, g))
+            cells += [_fmt(r and r["median"], ".2f"), _fmt(r and r["worst"], ".2f")]
+        lines.append(f"| `{m}` | `{counterpart(m)}` | " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
 def plot_speed_accuracy(rows: Sequence[dict], group: str, path: Path) -> None:
     """Scatter: median seconds per pair (log) vs median bad-2, one labelled point per method."""
     import matplotlib
@@ -276,6 +323,7 @@ def write_report(ev: Evaluation, groups: dict[str, list[str]], out: Path, docs: 
         "",
     ]
     parts += headline(rows, list(groups))
+    parts += counterpart_table(counterpart_ratios(ev, groups), list(groups))
     for group in groups:
         parts += [f"## {group}: median over pairs", "", pairs_line(ev, groups[group]), "",
                   markdown_table(rows, group), ""]

@@ -12,7 +12,7 @@ export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 wait
 for name in siamese dispnet smd; do
   best=$(ls -t lightning_logs/$name/checkpoints/best-*.ckpt | head -1)
-  "$PY" -m stereonet.training.export weights "$best" weights/$name.pt
+  "$PY" -m stereonet.training.export weights "$best" stereonet/weights/$name.pt
 done
-"$PY" -m stereonet.training.export curves weights/curves.png \
+"$PY" -m stereonet.training.export curves stereonet/weights/curves.png \
   siamese=lightning_logs/siamese dispnet=lightning_logs/dispnet smd=lightning_logs/smd

@@ -85,3 +85,18 @@ def test_pairs_line_counts_each_datasets_pairs_once():
                                                                   "kitti2012": ["000000_10"]}
     line = pairs_line(ev, ["middlebury2001", "kitti2012"])
     assert "**3 pairs**" in line and "middlebury2001 2 (tsukuba, venus)" in line and "kitti2012 1" in line
+
+
+def test_counterpart_ratios_hold_block_matchers_against_opencv_bm():
+    from stereonet.evaluation import Evaluation, PairResult
+
+    seconds = {("opencv-bm", "a"): 1.0, ("opencv-bm", "b"): 2.0, ("opencv-sgbm", "a"): 4.0, ("opencv-sgbm", "b"): 4.0,
+               ("bm-sad", "a"): 1.5, ("bm-sad", "b"): 2.0, ("sgm", "a"): 4.0, ("sgm", "b"): 12.0}
+    ev = Evaluation([PairResult(m, "d", p, {"bad2": 1.0}, {"bad2": 1.0}, s, 1.0) for (m, p), s in seconds.items()])
+    rows = {r["method"]: r for r in bench.counterpart_ratios(ev, {"real": ["d"]})}
+    assert set(rows) == {"bm-sad", "sgm"}  # the references are not held against themselves
+    assert rows["bm-sad"]["reference"] == "opencv-bm" and rows["sgm"]["reference"] == "opencv-sgbm"
+    assert (rows["bm-sad"]["median"], rows["bm-sad"]["worst"]) == (1.25, 1.5)
+    assert (rows["sgm"]["median"], rows["sgm"]["worst"]) == (2.0, 3.0)
+    lines = bench.counterpart_table(list(rows.values()), ["real"])
+    assert "| `bm-sad` | `opencv-bm` | 1.25 | 1.50 |" in lines and "| `sgm` | `opencv-sgbm` | 2.00 | 3.00 |" in lines
