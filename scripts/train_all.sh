@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Train the three learned matchers as the shipped weights were trained, export them to weights/ and plot
 # their curves. Run from the repository root; logs and checkpoints go to lightning_logs/.
-# Times: ~40 min (siamese) and 58 min each (dispnet, smd: the configs' max_time), all in parallel, one thread
-# each, on a 2-core CPU (the shipped dispnet/smd were trained exactly so, without the siamese run beside them).
+# Times: 58 min each for dispnet and smd (the configs' max_time); the siamese recipe's 29 803 steps took 1 h 37 min
+# alone on both cores (fourteenth session), longer here with one thread beside the other two. All in parallel, one
+# thread each, on a 2-core CPU (the shipped weights were each trained alone; see stereonet/weights/README.md).
 set -euo pipefail
 PY=${PYTHON:-.venv/bin/python}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}

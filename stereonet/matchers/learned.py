@@ -271,7 +271,8 @@ def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, 
 
 
 # Weight of the learned cost in siamese-census-sgm, chosen on data_gen validation pairs only for the shipped
-# weights (0.75 for the fifth-session weights, 0.9 for the far-negatives ones; see the model card)
+# weights (0.75 for the fifth-session weights, 0.9 for the far-negatives ones, and 0.9 again for the fourteenth
+# session's five-layer ones; see the model card)
 LEARNED_WEIGHT = 0.9
 
 
