@@ -195,11 +195,16 @@ def matching_loss(s_pos: torch.Tensor, s_neg: torch.Tensor, margin: float = 0.2,
 def siamese_pair_loss(net: SiameseNet, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor,
                       valid: torch.Tensor, num_samples: int = 512, margin: float = 0.2, neg_low: float = 1.5,
                       neg_high: float = 8.0, loss: str = "hinge",
-                      generator: torch.Generator | None = None) -> torch.Tensor:
+                      generator: torch.Generator | None = None, teacher: SiameseNet | None = None,
+                      distill: float = 0.0) -> torch.Tensor:
     """MC-CNN training loss on patches sampled from ground truth (see :func:`sample_training_pixels`).
 
     Only the sampled patches go through the network (as MC-CNN trains), so a step costs
     ``3 * num_samples`` patch evaluations per image instead of two dense feature maps.
+
+    With a ``teacher`` (another, frozen tower) and ``distill > 0``, the loss adds ``distill`` times the mean
+    squared difference between the network's similarities and the teacher's on the same positive and negative
+    pairs (relational distillation: feature widths may differ, similarities are comparable).
 
     Args:
         left, right: images :math:`(B, C, H, W)`; disparity :math:`(B, 1, H, W)`; valid bool :math:`(B, 1, H, W)`.
@@ -213,4 +218,12 @@ def siamese_pair_loss(net: SiameseNet, left: torch.Tensor, right: torch.Tensor, 
     f_left = net.patch_features(left[keep], xs, ys)  # BxFxN
     f_pos = net.patch_features(right[keep], x_pos, ys)
     f_neg = net.patch_features(right[keep], x_neg, ys)
-    return matching_loss((f_left * f_pos).sum(1), (f_left * f_neg).sum(1), margin, loss)
+    s_pos, s_neg = (f_left * f_pos).sum(1), (f_left * f_neg).sum(1)
+    out = matching_loss(s_pos, s_neg, margin, loss)
+    if teacher is not None and distill > 0:
+        with torch.no_grad():
+            t_left = teacher.patch_features(left[keep], xs, ys)
+            t_pos = (t_left * teacher.patch_features(right[keep], x_pos, ys)).sum(1)
+            t_neg = (t_left * teacher.patch_features(right[keep], x_neg, ys)).sum(1)
+        out = out + distill * 0.5 * (F.mse_loss(s_pos, t_pos) + F.mse_loss(s_neg, t_neg))
+    return out

@@ -270,18 +270,29 @@ class SiameseModule(StereoModule):
         loss: "hinge" (margin ranking) or "bce".
         margin, neg_low, neg_high, num_samples: see :func:`~stereonet.models.siamese.siamese_pair_loss`.
         max_disp: disparity range of the validation WTA.
+        teacher: optional weights file of a trained Siamese tower (any width/depth), kept frozen and outside
+            the checkpoint's state; with ``distill > 0`` the loss also pulls this network's similarities
+            towards the teacher's on the sampled pairs (see :func:`~stereonet.models.siamese.siamese_pair_loss`).
+        distill: weight of that term (0: plain MC-CNN training).
     """
 
     model_name = "siamese"
 
     def __init__(self, channels: int = 32, layers: int = 4, loss: str = "hinge", margin: float = 0.2,
                  neg_low: float = 1.5, neg_high: float = 8.0, num_samples: int = 256, max_disp: int = 64,
-                 lr: float = 1e-3, weight_decay: float = 0.0, schedule_steps: int = 5000) -> None:
+                 lr: float = 1e-3, weight_decay: float = 0.0, schedule_steps: int = 5000,
+                 teacher: str | None = None, distill: float = 0.0) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         if loss not in ("hinge", "bce"):
             raise ValueError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
+        if distill < 0:
+            raise ValueError(f"distill: expected >= 0, got {distill}")
         self.model = SiameseNet(channels=channels, layers=layers)
+        self._teacher: list[torch.nn.Module] = []  # a list hides it from state_dict, optimiser and device moves
+        if teacher is not None and distill > 0:
+            net, _ = load_weights(teacher, expected="siamese")
+            self._teacher.append(net.requires_grad_(False).eval())
 
     def model_config(self) -> dict:
         return {"channels": self.hparams.channels, "layers": self.hparams.layers}
@@ -292,8 +303,12 @@ class SiameseModule(StereoModule):
     def compute(self, batch: dict):
         hp = self.hparams
         valid = batch.get("nonoccluded", batch["valid"])
+        teacher = None
+        if self._teacher and self.training:
+            teacher = self._teacher[0] = self._teacher[0].to(batch["left"].device)
         loss = siamese_pair_loss(self.model, batch["left"], batch["right"], batch["disparity"], valid,
-                                 hp.num_samples, hp.margin, hp.neg_low, hp.neg_high, hp.loss)
+                                 hp.num_samples, hp.margin, hp.neg_low, hp.neg_high, hp.loss,
+                                 teacher=teacher, distill=hp.distill)
         if self.training:  # dense matching only where it is reported (validation): it costs more than the loss
             return loss, None, {}
         with torch.no_grad():
