@@ -253,6 +253,39 @@ def test_siamese_loss_prefers_true_disparity(textured_pair):
     assert matching_loss(torch.ones(3), torch.zeros(3), margin=0.2) == 0
 
 
+def test_siamese_distillation_term(textured_pair):
+    """The distillation term is zero against an identical teacher, positive against another one, and its
+    gradient pulls the student's similarities towards the teacher's (different widths)."""
+    left, right, d = textured_pair
+    torch.manual_seed(0)
+    net = SiameseNet(channels=8, layers=2)
+    disp = torch.full((1, 1, *left.shape[-2:]), float(d))
+    valid = torch.ones_like(disp, dtype=torch.bool)
+
+    def loss(teacher, distill=1.0):
+        return siamese_pair_loss(net, left, right, disp, valid, 128, generator=torch.Generator().manual_seed(0),
+                                 teacher=teacher, distill=distill)
+
+    plain = loss(None)
+    twin = SiameseNet(channels=8, layers=2)
+    twin.load_state_dict(net.state_dict())
+    assert torch.allclose(loss(twin), plain)
+    other = SiameseNet(channels=16, layers=2).requires_grad_(False)
+    assert loss(other, 0.0) == plain
+    def term():  # the distillation term alone
+        return loss(other, 1.0) - loss(None)
+
+    first = term().item()
+    assert first > 0
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
+    for _ in range(30):
+        opt.zero_grad()
+        term().backward()
+        opt.step()
+    assert term().item() < 0.5 * first, first
+    assert all(p.grad is None for p in other.parameters())
+
+
 def test_weights_roundtrip_and_errors(tmp_path, small_dispnet):
     path = tmp_path / "dispnet.pt"
     save_weights(path, "dispnet", {"max_disp": 16, "channels": 8}, small_dispnet)

@@ -10,7 +10,7 @@ from unittest import mock
 import pytest
 import torch
 
-from stereonet.models.siamese import siamese_pair_loss
+from stereonet.models.siamese import SiameseNet, siamese_pair_loss
 from stereonet.training.callbacks import AtomicCheckpointIO
 from stereonet.training.curriculum import difficulty_at
 from stereonet.training.data import RandomShiftStereo, collate_pairs, gt_nonoccluded, swap_flip
@@ -173,6 +173,27 @@ def test_overfit_one_batch_siamese(one_thread):
 
     first, final = _fit(loss, module.parameters(), 40, 1e-2)
     assert final < 0.05 * first, (first, final)
+
+
+def test_siamese_module_teacher_stays_out_of_the_checkpoint(tmp_path):
+    from stereonet.models.weights import save_weights
+
+    teacher = SiameseNet(channels=8, layers=2)
+    path = tmp_path / "teacher.pt"
+    save_weights(path, "siamese", {"channels": 8, "layers": 2}, teacher)
+    module = SiameseModule(channels=4, layers=2, num_samples=32, teacher=str(path), distill=1.0)
+    assert all(k.startswith("model.") for k in module.state_dict())
+    assert sum(p.numel() for p in module.parameters()) == sum(p.numel() for p in module.model.parameters())
+    batch = _one_batch()
+    plain = SiameseModule(channels=4, layers=2, num_samples=32)
+    plain.load_state_dict(module.state_dict())
+    module.train(), plain.train()
+    torch.manual_seed(0)
+    with_teacher = module.compute(batch)[0]
+    torch.manual_seed(0)
+    assert with_teacher > plain.compute(batch)[0]  # same sampled pairs (same seed), plus the squared term
+    with pytest.raises(ValueError, match="distill"):
+        SiameseModule(distill=-1.0)
 
 
 def test_smd_loss_decreases_on_one_batch(one_thread):
