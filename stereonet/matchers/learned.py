@@ -1,4 +1,5 @@
-"""Learned matchers in the registry: ``siamese``, ``siamese-sgm``, ``dispnet``, ``smd``.
+"""Learned matchers in the registry: ``siamese``, ``siamese-sgm``, ``siamese-census-sgm``, ``dispnet``, ``smd``,
+``sgm-refine``.
 
 Each loads its network from ``stereonet/weights/<name>.pt`` (or ``.ckpt``) the first time it runs (cached per file);
 ``checkpoint=PATH`` overrides. Missing files, checkpoints of another model and tensors of the wrong shape
@@ -45,7 +46,7 @@ def _cached(path: str, mtime: float, expected: str):
 
 
 NETWORK_OF = {"dispnet": "dispnet", "smd": "smd", "siamese": "siamese", "siamese-sgm": "siamese",
-              "siamese-census-sgm": "siamese"}
+              "siamese-census-sgm": "siamese", "sgm-refine": "refine"}
 
 
 def weights_available(name: str) -> bool:
@@ -292,3 +293,31 @@ def siamese_census_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp
         raise StereoInputError(f"learned_weight: expected a value in [0, 1], got {learned_weight!r}")
     learned = _siamese_cost(left, right, max_disp, checkpoint, backend, onnx_model, precision).clamp_(max=2.0)  # BxDxHxW, ours
     return sgm(left, right, max_disp, extra_cost=(1.0 - learned_weight, 24.0 * learned_weight, learned), **options)
+
+
+def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_options):
+    """What ``sgm-refine``'s network reads, for training and inference alike: ``sgm``'s disparity with the
+    invalid pixels filled by the shared rule (:func:`~stereonet.select.fill.fill_occlusions`, as
+    ``eval.py --fill`` fills every method), its validity and its cost-margin confidence (0 where invalid)."""
+    from stereonet.matchers.local import sgm
+    from stereonet.select.fill import fill_occlusions
+
+    out = sgm(left, right, max_disp, **sgm_options)
+    confidence = out.confidence if out.confidence is not None else out.valid.to(left.dtype)
+    return fill_occlusions(out.disparity, out.valid), out.valid, confidence
+
+
+@register("sgm-refine", kind="learned", needs_weights=True,
+          description="sgm, then a learned residual refinement of its filled map (weights/refine.pt)")
+def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                       backend: str = "torch", **options) -> StereoOutput:
+    """``sgm`` (options as for ``sgm``) with its invalid pixels filled, then :class:`~stereonet.models.refine.RefineNet`
+    adds a residual read from the images, the map, its validity and confidence. Every pixel is valid; the
+    confidence is ``sgm``'s (the refinement does not re-rank it). ``backend``: "torch" only."""
+    if backend != "torch":
+        raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
+    net = load_network("refine", checkpoint)
+    base, valid, confidence = sgm_base(left, right, max_disp, **options)
+    with torch.no_grad():
+        disp = net.to(left.device)(left, right, base, valid, confidence, max_disp)
+    return StereoOutput(disp, torch.ones_like(valid), confidence=confidence, extras={"base": base})

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from stereonet.models.dispnet import DispNet
+from stereonet.models.refine import RefineNet
 from stereonet.models.siamese import SiameseNet, siamese_cost_volume, siamese_pair_loss
 from stereonet.models.smd import SMDNet
 from stereonet.models.weights import load_weights
@@ -318,3 +319,48 @@ class SiameseModule(StereoModule):
             cost = siamese_cost_volume(feats[:b], feats[b:], max_disp)
             pred = cost.argmin(dim=1, keepdim=True).to(feats.dtype)
         return loss, pred, {}
+
+
+class RefineModule(StereoModule):
+    """Trains :class:`~stereonet.models.refine.RefineNet` on the classical ``sgm``'s maps of the training pairs.
+
+    Each step runs ``sgm`` (no gradient, its CPU kernels) on the batch's images exactly as the ``sgm-refine``
+    matcher does at inference (:func:`stereonet.matchers.learned.sgm_base`: filled disparity, validity,
+    cost-margin confidence), then fits the refined map to the ground truth with a smooth L1 loss on every
+    ground-truth pixel (occluded ones too: they are where the classical fill is weakest). ``base_epe`` and
+    ``base_bad2`` log the classical map's own errors, so the curve shows the gain over ``sgm``.
+
+    Args:
+        channels, dilations: the network's (see RefineNet).
+        max_disp: disparity range given to ``sgm`` for pairs that carry none (data_gen pairs carry their own
+            ``max_disp``, the range they were rendered in, which is what a user passes at inference).
+        lr, weight_decay, schedule_steps: see :class:`StereoModule`.
+    """
+
+    model_name = "refine"
+
+    def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 8, 1), max_disp: int = 64,
+                 lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+        super().__init__(lr, weight_decay, schedule_steps)
+        self.save_hyperparameters()
+        self.model = RefineNet(channels=channels, dilations=tuple(dilations))
+
+    def model_config(self) -> dict:
+        return {"channels": self.hparams.channels, "dilations": list(self.hparams.dilations)}
+
+    def compute(self, batch: dict):
+        from stereonet.matchers.learned import sgm_base  # matchers sit above models; only training reaches up
+
+        left, right = batch["left"], batch["right"]
+        b, w = left.shape[0], left.shape[-1]
+        ranges = batch.get("max_disp") or [self.hparams.max_disp] * b  # each pair's own range, as eval.py gives
+        ranges = [max(1, min(int(r), w - 1)) for r in ranges]
+        with torch.no_grad():
+            parts = [sgm_base(left[i:i + 1], right[i:i + 1], ranges[i]) for i in range(b)]
+            base, valid, confidence = (torch.cat(t) for t in zip(*parts))
+        pred = self.model(left, right, base, valid, confidence, torch.tensor(ranges, dtype=left.dtype))
+        gt, gt_valid = batch["disparity"], batch["valid"]
+        loss = torch.nn.functional.smooth_l1_loss(pred[gt_valid], gt[gt_valid]) if bool(gt_valid.any()) \
+            else pred.sum() * 0.0
+        errs = disparity_errors(base, gt, gt_valid)
+        return loss, pred, {"base_epe": errs["epe"], "base_bad2": errs["bad2"]}

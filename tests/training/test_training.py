@@ -17,10 +17,11 @@ from stereonet.training.data import RandomShiftStereo, collate_pairs, gt_nonoccl
 from stereonet.training.losses import (
     bimodal_laplacian_nll,
     coarse_to_fine_weights,
+    disparity_errors,
     edge_weights,
     multiscale_l1_loss,
 )
-from stereonet.training.module import DispNetModule, SiameseModule, SMDModule
+from stereonet.training.module import DispNetModule, RefineModule, SiameseModule, SMDModule
 
 CONFIGS = sorted((Path(__file__).resolve().parents[2] / "configs").glob("*.yaml"))
 TINY = ["--data.source", "random-shift", "--data.height", "32", "--data.width", "64", "--data.batch_size", "2",
@@ -194,6 +195,19 @@ def test_siamese_module_teacher_stays_out_of_the_checkpoint(tmp_path):
     assert with_teacher > plain.compute(batch)[0]  # same sampled pairs (same seed), plus the squared term
     with pytest.raises(ValueError, match="distill"):
         SiameseModule(distill=-1.0)
+
+
+def test_refine_module_starts_at_sgm_and_learns(one_thread):
+    """RefineModule runs sgm on each pair with the pair's own range: the untrained prediction is sgm's filled
+    map (base_epe equals the prediction's error); a few steps on one batch lower the loss."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = RefineModule(channels=8, dilations=(1, 2), lr=3e-3)
+    loss, pred, extra = module.compute(batch)
+    errs = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
+    assert torch.allclose(errs["epe"], extra["base_epe"])
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 3e-3)
+    assert final < 0.8 * first, (first, final)
 
 
 def test_smd_loss_decreases_on_one_batch(one_thread):
