@@ -318,6 +318,8 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
     net = load_network("refine", checkpoint)
     base, valid, confidence = sgm_base(left, right, max_disp, **options)
+    dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
-        disp = net.to(left.device)(left, right, base, valid, confidence, max_disp)
-    return StereoOutput(disp, torch.ones_like(valid), confidence=confidence, extras={"base": base})
+        disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),
+                                   max_disp)
+    return StereoOutput(disp.to(left.dtype), torch.ones_like(valid), confidence=confidence, extras={"base": base})

@@ -12,6 +12,15 @@ Five 3x3 convolutions with dilations 1, 2, 4, 8, 1 (the context module of Yu & K
 support at full resolution, enough to carry a surface across an occlusion or a weakly textured patch; the last
 convolution starts at zero, so an untrained network returns the classical map unchanged and training starts
 from the classical matcher's accuracy, not from zero. The network is stateless (no loss in ``forward``).
+
+``mode="select"`` replaces the regressed residual by a choice: each pixel keeps its own disparity or takes the one
+of a neighbour at ``radii`` pixels in one of eight directions (PatchMatch-style propagation, scored by a learned
+function of the shared context and of per-candidate evidence: the photometric residual of the candidate disparity,
+the grey-level difference to the neighbour it comes from, the step from the pixel's own value, the neighbour's
+validity and confidence). The output is always one of the classical map's values, so edges stay as sharp as the
+classical map's: a regressed residual blends values across a discontinuity, and the first (residual) run made
+every bad-τ worse while lowering EPE. The score head starts at zero: all candidates tie and the pixel's own value
+(candidate 0) wins, so an untrained network again returns the classical map.
 """
 
 from __future__ import annotations
@@ -26,29 +35,68 @@ from stereonet.models.layers import standardize_image, warp_right
 INPUT_CHANNELS = 5
 """left, photometric residual, d / max_disp, validity, confidence."""
 
+CANDIDATE_CHANNELS = 6
+"""per candidate: photometric residual, grey difference to its source pixel, step / max_disp, the source's validity
+and confidence, its distance / the largest radius."""
+
+MODES = ("residual", "select")
+DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
+
+
+def candidate_offsets(radii: tuple[int, ...]) -> list[tuple[int, int]]:
+    """(dy, dx) of the candidates: (0, 0) first, then eight directions at every radius."""
+    return [(0, 0)] + [(dy * r, dx * r) for r in radii for dy, dx in DIRECTIONS]
+
+
+def shift(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:
+    """``out[..., y, x] = x[..., y + dy, x + dx]`` for :math:`(B, C, H, W)` ``x``, the border replicated (each
+    pixel sees its neighbour's value)."""
+    if dy == 0 and dx == 0:
+        return x
+    h, w = x.shape[-2:]
+    top, left = max(-dy, 0), max(-dx, 0)
+    xp = F.pad(x.float(), (left, max(dx, 0), top, max(dy, 0)), mode="replicate")
+    return xp[..., top + dy:top + dy + h, left + dx:left + dx + w].to(x.dtype)
+
 
 class RefineNet(nn.Module):
-    """Residual refinement of a disparity map.
+    """Refinement of a disparity map: a regressed residual (``mode="residual"``) or a choice among the map's own
+    values at the pixel and its neighbours (``mode="select"``).
 
     Args:
         channels: width of every hidden layer.
         dilations: one 3x3 convolution per entry, with that dilation (zero-padded, same size).
+        mode: "residual" or "select" (see the module docstring).
+        radii: distances in pixels of the neighbours whose values are candidates (``select`` only).
     """
 
-    def __init__(self, channels: int = 16, dilations: tuple[int, ...] | list[int] = (1, 2, 4, 8, 1)) -> None:
+    def __init__(self, channels: int = 16, dilations: tuple[int, ...] | list[int] = (1, 2, 4, 8, 1),
+                 mode: str = "residual", radii: tuple[int, ...] | list[int] = (1, 3, 9, 27)) -> None:
         super().__init__()
         if channels < 1:
             raise StereoInputError(f"channels: expected >= 1, got {channels}")
         if not dilations or any(int(d) < 1 for d in dilations):
             raise StereoInputError(f"dilations: expected a non-empty list of integers >= 1, got {list(dilations)}")
+        if mode not in MODES:
+            raise StereoInputError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
+        if mode == "select" and (not radii or any(int(r) < 1 for r in radii)):
+            raise StereoInputError(f"radii: expected a non-empty list of integers >= 1, got {list(radii)}")
         self.channels, self.dilations = int(channels), tuple(int(d) for d in dilations)
+        self.mode, self.radii = mode, tuple(int(r) for r in radii)
         mods: list[nn.Module] = [nn.Conv2d(INPUT_CHANNELS, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
         for d in self.dilations:
             mods += [nn.Conv2d(self.channels, self.channels, 3, padding=d, dilation=d), nn.ReLU(inplace=True)]
         self.body = nn.Sequential(*mods)
-        self.head = nn.Conv2d(self.channels, 1, 3, padding=1)
-        nn.init.zeros_(self.head.weight)
-        nn.init.zeros_(self.head.bias)
+        if mode == "residual":
+            self.head = nn.Conv2d(self.channels, 1, 3, padding=1)
+            nn.init.zeros_(self.head.weight)
+            nn.init.zeros_(self.head.bias)
+        else:  # score_k = w2 . relu(A ctx + B f_k + b): A ctx once per pixel, B f_k per candidate
+            self.score_context = nn.Conv2d(self.channels, self.channels, 1)
+            self.score_candidate = nn.Conv2d(CANDIDATE_CHANNELS, self.channels, 1, bias=False)
+            self.score_out = nn.Conv2d(self.channels, 1, 1)
+            nn.init.zeros_(self.score_out.weight)
+            nn.init.zeros_(self.score_out.bias)
 
     def inputs(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor, valid: torch.Tensor,
                confidence: torch.Tensor, max_disp: float | torch.Tensor) -> torch.Tensor:
@@ -64,9 +112,33 @@ class RefineNet(nn.Module):
         """Refined disparity :math:`(B, 1, H, W)` >= 0 from images :math:`(B, C, H, W)` in [0, 1] and the
         classical matcher's filled disparity, validity and confidence :math:`(B, 1, H, W)`; ``max_disp`` the
         range the map was searched in (a number, or one per item)."""
+        if self.mode == "select":
+            scores, candidates = self.scores(left, right, disparity, valid, confidence, max_disp)
+            return candidates.gather(1, scores.argmax(dim=1, keepdim=True))  # ties: the pixel's own value
         x = self.inputs(left, right, disparity, valid, confidence, max_disp)
         step = self.head(self.body(x))
         return F.relu(disparity + step)  # the residual in pixels: most corrections are a few pixels
+
+    def scores(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor, valid: torch.Tensor,
+               confidence: torch.Tensor, max_disp: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``select`` mode: candidate scores and candidate disparities, both :math:`(B, K, H, W)`, candidate 0
+        the pixel's own value (:func:`candidate_offsets` gives the order)."""
+        if self.mode != "select":
+            raise StereoInputError(f"mode: scores() needs mode 'select', this network has {self.mode!r}")
+        x = self.inputs(left, right, disparity, valid, confidence, max_disp)
+        grey_l, grey_r = x[:, :1], standardize_image(right, grey=True)
+        ctx = self.score_context(self.body(x))
+        scale, far = _range(max_disp, disparity), float(max(self.radii))
+        valid_f, conf = valid.to(left.dtype), confidence.to(left.dtype)
+        scores, candidates = [], []
+        for dy, dx in candidate_offsets(self.radii):
+            cand = shift(disparity, dy, dx)
+            feats = torch.cat([(grey_l - warp_right(grey_r, cand)).abs(), (grey_l - shift(grey_l, dy, dx)).abs(),
+                               (cand - disparity) / scale, shift(valid_f, dy, dx), shift(conf, dy, dx),
+                               torch.full_like(cand, max(abs(dy), abs(dx)) / far)], 1)
+            scores.append(self.score_out(F.relu(ctx + self.score_candidate(feats))))
+            candidates.append(cand)
+        return torch.cat(scores, 1), torch.cat(candidates, 1)
 
 
 def _range(max_disp: float | torch.Tensor, like: torch.Tensor) -> float | torch.Tensor:

@@ -326,27 +326,43 @@ class RefineModule(StereoModule):
 
     Each step runs ``sgm`` (no gradient, its CPU kernels) on the batch's images exactly as the ``sgm-refine``
     matcher does at inference (:func:`stereonet.matchers.learned.sgm_base`: filled disparity, validity,
-    cost-margin confidence), then fits the refined map to the ground truth with a smooth L1 loss on every
-    ground-truth pixel (occluded ones too: they are where the classical fill is weakest). ``base_epe`` and
-    ``base_bad2`` log the classical map's own errors, so the curve shows the gain over ``sgm``.
+    cost-margin confidence). ``mode="residual"`` fits the refined map to the ground truth with a smooth L1 loss on
+    every ground-truth pixel (occluded ones too: they are where the classical fill is weakest). ``mode="select"``
+    maximises the probability (softmax over the candidates' scores) of choosing a candidate within ``tolerance``
+    pixels of the ground truth, on the pixels that have one: with ``target="any"`` the loss is the log of the
+    probability summed over every right candidate (the choice among them left free); with ``target="keep"`` it
+    is the cross-entropy of one target per pixel, the pixel's own value when it is right, else the right candidate
+    closest to the ground truth. "keep" matches what inference does (the top-scoring candidate): under "any" the
+    mass can sit on a set of right candidates while a single wrong one scores highest (the first select run). ``base_epe`` and ``base_bad2`` log the classical map's own
+    errors, so the curve shows the gain over ``sgm``; ``oracle_bad2`` (select) the best any choice could do.
 
     Args:
-        channels, dilations: the network's (see RefineNet).
+        channels, dilations, mode, radii: the network's (see RefineNet).
         max_disp: disparity range given to ``sgm`` for pairs that carry none (data_gen pairs carry their own
             ``max_disp``, the range they were rendered in, which is what a user passes at inference).
+        tolerance: ``select`` only: a candidate within this many pixels of the ground truth counts as right.
+        target: ``select`` only: "any" or "keep" (see above).
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
     """
 
     model_name = "refine"
 
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 8, 1), max_disp: int = 64,
-                 lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+                 mode: str = "residual", radii: tuple[int, ...] = (1, 3, 9, 27), tolerance: float = 1.0,
+                 target: str = "any", lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
+        if not tolerance > 0:
+            raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
+        if target not in ("any", "keep"):
+            raise ValueError(f"target: expected 'any' or 'keep', got {target!r}")
         self.save_hyperparameters()
-        self.model = RefineNet(channels=channels, dilations=tuple(dilations))
+        self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii))
 
     def model_config(self) -> dict:
-        return {"channels": self.hparams.channels, "dilations": list(self.hparams.dilations)}
+        config = {"channels": self.hparams.channels, "dilations": list(self.hparams.dilations)}
+        if self.hparams.mode != "residual":  # residual files keep the first run's config
+            config.update(mode=self.hparams.mode, radii=list(self.hparams.radii))
+        return config
 
     def compute(self, batch: dict):
         from stereonet.matchers.learned import sgm_base  # matchers sit above models; only training reaches up
@@ -358,9 +374,26 @@ class RefineModule(StereoModule):
         with torch.no_grad():
             parts = [sgm_base(left[i:i + 1], right[i:i + 1], ranges[i]) for i in range(b)]
             base, valid, confidence = (torch.cat(t) for t in zip(*parts))
-        pred = self.model(left, right, base, valid, confidence, torch.tensor(ranges, dtype=left.dtype))
         gt, gt_valid = batch["disparity"], batch["valid"]
-        loss = torch.nn.functional.smooth_l1_loss(pred[gt_valid], gt[gt_valid]) if bool(gt_valid.any()) \
-            else pred.sum() * 0.0
+        scale = torch.tensor(ranges, dtype=left.dtype)
+        extra = {}
+        if self.hparams.mode == "select":
+            scores, candidates = self.model.scores(left, right, base, valid, confidence, scale)
+            right_ones = (candidates - gt).abs() <= self.hparams.tolerance
+            usable = gt_valid[:, 0] & right_ones.any(1)
+            if self.hparams.target == "keep":  # own value if right, else the closest right candidate
+                closest = (candidates - gt).abs().argmin(1)
+                index = torch.where(right_ones[:, 0], torch.zeros_like(closest), closest)
+                log_p = torch.log_softmax(scores, 1).gather(1, index[:, None])[:, 0]
+            else:
+                log_p = torch.logsumexp(scores.masked_fill(~right_ones, -1e4), 1) - torch.logsumexp(scores, 1)
+            loss = -log_p[usable].mean() if bool(usable.any()) else scores.sum() * 0.0
+            pred = candidates.gather(1, scores.argmax(1, keepdim=True))
+            oracle = candidates.gather(1, (candidates - gt).abs().argmin(1, keepdim=True))
+            extra["oracle_bad2"] = disparity_errors(oracle, gt, gt_valid)["bad2"]
+        else:
+            pred = self.model(left, right, base, valid, confidence, scale)
+            loss = torch.nn.functional.smooth_l1_loss(pred[gt_valid], gt[gt_valid]) if bool(gt_valid.any()) \
+                else pred.sum() * 0.0
         errs = disparity_errors(base, gt, gt_valid)
-        return loss, pred, {"base_epe": errs["epe"], "base_bad2": errs["bad2"]}
+        return loss, pred, {"base_epe": errs["epe"], "base_bad2": errs["bad2"], **extra}

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from stereonet.checks import StereoInputError
-from stereonet.models.refine import INPUT_CHANNELS, RefineNet
+from stereonet.models.refine import INPUT_CHANNELS, RefineNet, candidate_offsets, shift
 from stereonet.models.weights import load_weights, save_weights
 
 
@@ -60,6 +60,64 @@ def test_refine_net_rejects_bad_config():
         RefineNet(channels=0)
     with pytest.raises(StereoInputError, match="dilations"):
         RefineNet(dilations=())
+    with pytest.raises(StereoInputError, match="mode"):
+        RefineNet(mode="blend")
+    with pytest.raises(StereoInputError, match="radii"):
+        RefineNet(mode="select", radii=[0])
+    with pytest.raises(StereoInputError, match="select"):
+        RefineNet().scores(*_pair(), torch.ones(1, 1, 24, 40), torch.ones(1, 1, 24, 40, dtype=torch.bool),
+                           torch.ones(1, 1, 24, 40), 16)
+
+
+@pytest.mark.parametrize("dy,dx", [(0, 3), (0, -3), (2, 0), (-2, 0), (5, -7), (-30, 50)])
+def test_shift_reads_the_neighbour_and_replicates_the_border(dy, dx):
+    x = torch.arange(6 * 9, dtype=torch.float32).view(1, 1, 6, 9)
+    out = shift(x, dy, dx)
+    for y in range(6):
+        for c in range(9):
+            assert out[0, 0, y, c] == x[0, 0, min(max(y + dy, 0), 5), min(max(c + dx, 0), 8)]
+    assert shift(x > 20, dy, dx).dtype == torch.bool
+
+
+def test_untrained_selection_keeps_the_map_and_offers_the_neighbours():
+    torch.manual_seed(0)
+    net = RefineNet(channels=4, dilations=(1, 2), mode="select", radii=(1, 4))
+    left, right = _pair()
+    disp = torch.rand(1, 1, *left.shape[-2:]) * 8
+    valid, conf = disp > 2, torch.rand_like(disp)
+    scores, cands = net.scores(left, right, disp, valid, conf, 16)
+    offsets = candidate_offsets((1, 4))
+    assert scores.shape[1] == cands.shape[1] == len(offsets) == 17
+    assert torch.equal(cands[:, :1], disp)
+    k = offsets.index((0, 4))
+    assert torch.equal(cands[0, k, :, :-4], disp[0, 0, :, 4:])
+    assert torch.equal(net(left, right, disp, valid, conf, 16), disp)  # all scores tie: candidate 0 wins
+
+
+def test_selection_learns_to_replace_a_wrong_patch_by_its_neighbours():
+    """A 2-px-wide stripe of the map is off by 5 px and flagged invalid (as sgm flags what it fills); the true
+    value is one pixel away on either side. Trained with RefineModule's loss, the hard choice repairs the stripe
+    and keeps the rest."""
+    torch.manual_seed(0)
+    net = RefineNet(channels=8, dilations=(1, 2), mode="select", radii=(1, 3))
+    left, right = _pair()
+    gt = torch.full((1, 1, *left.shape[-2:]), 3.0)
+    disp = gt.clone()
+    disp[..., 10:12] += 5.0
+    valid = torch.ones_like(gt, dtype=torch.bool)
+    valid[..., 10:12] = False
+    conf = valid.float()
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
+    for _ in range(80):
+        scores, cands = net.scores(left, right, disp, valid, conf, 16)
+        right_ones = (cands - gt).abs() <= 1.0
+        loss = -(torch.logsumexp(scores.masked_fill(~right_ones, -1e4), 1) - torch.logsumexp(scores, 1)).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        out = net(left, right, disp, valid, conf, 16)
+    assert ((out - gt).abs() > 2).sum() < 0.2 * ((disp - gt).abs() > 2).sum()
 
 
 def test_sgm_refine_matcher_runs_from_a_weights_file(tmp_path):
@@ -81,3 +139,34 @@ def test_sgm_refine_matcher_runs_from_a_weights_file(tmp_path):
         match("sgm-refine", left, right, 16, checkpoint=str(path), backend="onnx")
     with pytest.raises(StereoInputError, match="'refine'"):
         load_weights(path, expected="siamese")  # a refine file where another network is expected: named
+
+
+def test_sgm_refine_matcher_runs_a_selection_file(tmp_path):
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import sgm_base
+
+    net = RefineNet(channels=4, dilations=(1, 2), mode="select", radii=[1, 3])
+    path = tmp_path / "refine.pt"
+    save_weights(path, "refine", {"channels": 4, "dilations": [1, 2], "mode": "select", "radii": [1, 3]}, net)
+    left, right = _pair(32, 64, 4)
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    base, _, _ = sgm_base(left, right, 16)
+    assert torch.equal(out.disparity, base) and bool(out.valid.all())
+    torch.nn.init.normal_(net.score_out.weight)  # any scores: the output is one of the candidates at each pixel
+    save_weights(path, "refine", {"channels": 4, "dilations": [1, 2], "mode": "select", "radii": [1, 3]}, net)
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    cands = torch.cat([shift(base, dy, dx) for dy, dx in candidate_offsets((1, 3))], 1)
+    assert bool(((cands - out.disparity).abs() < 1e-6).any(1).all())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["float32", "float64"])
+def test_sgm_refine_follows_the_input_dtype(tmp_path, dtype):
+    """What tests/test_dtype_device.py checks for shipped weights, here with a weights file of each mode."""
+    from stereonet.matchers import match
+
+    left, right = (t.to(dtype) for t in _pair(32, 64, 4))
+    for config in ({"channels": 4, "dilations": [1]}, {"channels": 4, "dilations": [1], "mode": "select", "radii": [2]}):
+        path = tmp_path / "refine.pt"
+        save_weights(path, "refine", config, RefineNet(**config))
+        out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+        assert out.disparity.dtype == out.confidence.dtype == dtype and out.valid.dtype == torch.bool

@@ -3,6 +3,7 @@ atomic checkpoints and resuming after a kill."""
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from unittest import mock
@@ -208,6 +209,37 @@ def test_refine_module_starts_at_sgm_and_learns(one_thread):
     assert torch.allclose(errs["epe"], extra["base_epe"])
     first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 3e-3)
     assert final < 0.8 * first, (first, final)
+
+
+def test_refine_module_selection_starts_at_sgm_and_learns(one_thread):
+    """mode="select": the untrained choice is sgm's filled map; the oracle (best candidate per pixel) is never
+    worse than sgm's map; a few steps lower the choice loss; the exported config carries the mode."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = RefineModule(channels=8, dilations=(1, 2), mode="select", radii=(1, 3), lr=3e-3)
+    loss, pred, extra = module.compute(batch)
+    errs = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
+    assert torch.allclose(errs["bad2"], extra["base_bad2"])
+    assert extra["oracle_bad2"] <= extra["base_bad2"]
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 40, 1e-2)
+    assert final < 0.8 * first, (first, final)
+    assert module.model_config() == {"channels": 8, "dilations": [1, 2], "mode": "select", "radii": [1, 3]}
+    with pytest.raises(ValueError, match="tolerance"):
+        RefineModule(mode="select", tolerance=0.0)
+    with pytest.raises(ValueError, match="target"):
+        RefineModule(mode="select", target="all")
+
+
+def test_refine_module_keep_target_is_the_cross_entropy_of_one_candidate(one_thread):
+    """target="keep": at the start (all scores equal) the loss is log K exactly, whichever candidate is the
+    target; training lowers it."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = RefineModule(channels=8, dilations=(1, 2), mode="select", radii=(1, 3), target="keep")
+    loss, _, _ = module.compute(batch)
+    assert abs(float(loss.detach()) - math.log(17)) < 1e-5
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 40, 1e-2)
+    assert final < first - 0.2, (first, final)  # 0.4 nats in 40 steps measured; a cross-entropy falls slowly
 
 
 def test_smd_loss_decreases_on_one_batch(one_thread):
