@@ -299,12 +299,29 @@ def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_optio
     """What ``sgm-refine``'s network reads, for training and inference alike: ``sgm``'s disparity with the
     invalid pixels filled by the shared rule (:func:`~stereonet.select.fill.fill_occlusions`, as
     ``eval.py --fill`` fills every method), its validity and its cost-margin confidence (0 where invalid)."""
+    return refine_bases(("sgm",), left, right, max_disp, **sgm_options)
+
+
+def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_options):
+    """The maps of the matchers ``bases`` (:data:`stereonet.models.refine.BASES`) as a RefineNet reads them:
+    each filled by the shared rule, stacked along the channels as ``(disparity, valid, confidence)``, each
+    :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; ``siamese-census-sgm`` runs with the shipped weights."""
     from stereonet.matchers.local import sgm
     from stereonet.select.fill import fill_occlusions
 
-    out = sgm(left, right, max_disp, **sgm_options)
-    confidence = out.confidence if out.confidence is not None else out.valid.to(left.dtype)
-    return fill_occlusions(out.disparity, out.valid), out.valid, confidence
+    maps, valids, confidences = [], [], []
+    for name in bases:
+        if name == "sgm":
+            out = sgm(left, right, max_disp, **sgm_options)
+        elif name == "siamese-census-sgm":
+            out = siamese_census_sgm_matcher(left, right, max_disp)
+        else:
+            raise StereoInputError(f"bases: unknown base matcher {name!r}")
+        confidence = out.confidence if out.confidence is not None else out.valid.to(left.dtype)
+        maps.append(fill_occlusions(out.disparity, out.valid))
+        valids.append(out.valid)
+        confidences.append(confidence)
+    return torch.cat(maps, 1), torch.cat(valids, 1), torch.cat(confidences, 1)
 
 
 @register("sgm-refine", kind="learned", needs_weights=True,
@@ -317,9 +334,10 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
     net = load_network("refine", checkpoint)
-    base, valid, confidence = sgm_base(left, right, max_disp, **options)
+    base, valid, confidence = refine_bases(net.bases, left, right, max_disp, **options)
     dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
         disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),
                                    max_disp)
-    return StereoOutput(disp.to(left.dtype), torch.ones_like(valid), confidence=confidence, extras={"base": base})
+    return StereoOutput(disp.to(left.dtype), torch.ones_like(valid[:, :1]), confidence=confidence[:, :1],
+                        extras={"base": base[:, :1]})

@@ -21,6 +21,15 @@ validity and confidence). The output is always one of the classical map's values
 classical map's: a regressed residual blends values across a discontinuity, and the first (residual) run made
 every bad-τ worse while lowering EPE. The score head starts at zero: all candidates tie and the pixel's own value
 (candidate 0) wins, so an untrained network again returns the classical map.
+
+``bases`` names the matchers whose filled maps the network reads (``("sgm",)`` by default). With more than one
+(``select`` only), every map contributes its own four input planes (residual, ``d / max_disp``, validity,
+confidence) and its own candidates (its value at the pixel and at the same neighbours); each candidate also
+carries its step from every map's value at the pixel and which map it comes from. Candidate 0 is the first map's
+own value, so an untrained network returns the first map. Two matchers with different costs (census alone, a
+learned cost) err in different places, so the best choice between them is far better than either; whether a
+network learns that choice from synthetic pairs in a way that holds on real ones is what the experiment measures.
+The network only reads the maps: the matcher (``sgm-refine``) and the training module run the named matchers.
 """
 
 from __future__ import annotations
@@ -33,11 +42,18 @@ from stereonet.checks import StereoInputError
 from stereonet.models.layers import standardize_image, warp_right
 
 INPUT_CHANNELS = 5
-"""left, photometric residual, d / max_disp, validity, confidence."""
+"""left, photometric residual, d / max_disp, validity, confidence (one map; each further map adds 4 planes)."""
+
+PLANES_PER_MAP = 4
+"""photometric residual, d / max_disp, validity, confidence."""
 
 CANDIDATE_CHANNELS = 6
 """per candidate: photometric residual, grey difference to its source pixel, step / max_disp, the source's validity
-and confidence, its distance / the largest radius."""
+and confidence, its distance / the largest radius (one map; with M maps also the step from each other map's value
+and the source map's index / (M - 1): M more)."""
+
+BASES = ("sgm", "siamese-census-sgm")
+"""Matchers whose maps a RefineNet may read (``bases``)."""
 
 MODES = ("residual", "select")
 DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
@@ -68,10 +84,13 @@ class RefineNet(nn.Module):
         dilations: one 3x3 convolution per entry, with that dilation (zero-padded, same size).
         mode: "residual" or "select" (see the module docstring).
         radii: distances in pixels of the neighbours whose values are candidates (``select`` only).
+        bases: the matchers whose maps it reads, in the order of the map channels (:data:`BASES`; more than one
+            with ``select`` only).
     """
 
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] | list[int] = (1, 2, 4, 8, 1),
-                 mode: str = "residual", radii: tuple[int, ...] | list[int] = (1, 3, 9, 27)) -> None:
+                 mode: str = "residual", radii: tuple[int, ...] | list[int] = (1, 3, 9, 27),
+                 bases: tuple[str, ...] | list[str] = ("sgm",)) -> None:
         super().__init__()
         if channels < 1:
             raise StereoInputError(f"channels: expected >= 1, got {channels}")
@@ -81,9 +100,16 @@ class RefineNet(nn.Module):
             raise StereoInputError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
         if mode == "select" and (not radii or any(int(r) < 1 for r in radii)):
             raise StereoInputError(f"radii: expected a non-empty list of integers >= 1, got {list(radii)}")
+        bases = tuple(bases)
+        if not bases or any(b not in BASES for b in bases) or len(set(bases)) < len(bases):
+            raise StereoInputError(f"bases: expected distinct names from {', '.join(BASES)}, got {list(bases)}")
+        if len(bases) > 1 and mode != "select":
+            raise StereoInputError(f"bases: more than one map needs mode 'select', got mode {mode!r}")
         self.channels, self.dilations = int(channels), tuple(int(d) for d in dilations)
-        self.mode, self.radii = mode, tuple(int(r) for r in radii)
-        mods: list[nn.Module] = [nn.Conv2d(INPUT_CHANNELS, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
+        self.mode, self.radii, self.bases = mode, tuple(int(r) for r in radii), bases
+        maps = len(bases)
+        in_channels = INPUT_CHANNELS + PLANES_PER_MAP * (maps - 1)
+        mods: list[nn.Module] = [nn.Conv2d(in_channels, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
         for d in self.dilations:
             mods += [nn.Conv2d(self.channels, self.channels, 3, padding=d, dilation=d), nn.ReLU(inplace=True)]
         self.body = nn.Sequential(*mods)
@@ -93,25 +119,39 @@ class RefineNet(nn.Module):
             nn.init.zeros_(self.head.bias)
         else:  # score_k = w2 . relu(A ctx + B f_k + b): A ctx once per pixel, B f_k per candidate
             self.score_context = nn.Conv2d(self.channels, self.channels, 1)
-            self.score_candidate = nn.Conv2d(CANDIDATE_CHANNELS, self.channels, 1, bias=False)
+            extra = maps if maps > 1 else 0
+            self.score_candidate = nn.Conv2d(CANDIDATE_CHANNELS + extra, self.channels, 1, bias=False)
             self.score_out = nn.Conv2d(self.channels, 1, 1)
             nn.init.zeros_(self.score_out.weight)
             nn.init.zeros_(self.score_out.bias)
 
     def inputs(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor, valid: torch.Tensor,
                confidence: torch.Tensor, max_disp: float | torch.Tensor) -> torch.Tensor:
-        """The five input planes :math:`(B, 5, H, W)` (see the module docstring)."""
+        """The input planes :math:`(B, 1 + 4 M, H, W)` of M maps :math:`(B, M, H, W)` (see the module
+        docstring): the grey left image, then per map its residual, ``d / max_disp``, validity, confidence."""
+        self._check_maps(disparity, valid, confidence)
         grey_l = standardize_image(left, grey=True)
         grey_r = standardize_image(right, grey=True)
-        residual = grey_l - warp_right(grey_r, disparity)
-        return torch.cat([grey_l, residual, disparity / _range(max_disp, disparity), valid.to(left.dtype),
-                          confidence.to(left.dtype)], 1)
+        scale = _range(max_disp, disparity)
+        planes = [grey_l]
+        for m in range(disparity.shape[1]):
+            d = disparity[:, m:m + 1]
+            planes += [grey_l - warp_right(grey_r, d), d / scale, valid[:, m:m + 1].to(left.dtype),
+                       confidence[:, m:m + 1].to(left.dtype)]
+        return torch.cat(planes, 1)
+
+    def _check_maps(self, disparity: torch.Tensor, valid: torch.Tensor, confidence: torch.Tensor) -> None:
+        maps = len(self.bases)
+        for name, t in (("disparity", disparity), ("valid", valid), ("confidence", confidence)):
+            if t.dim() != 4 or t.shape[1] != maps:
+                raise StereoInputError(f"{name}: expected (B, {maps}, H, W), one map per base "
+                                       f"({', '.join(self.bases)}), got {tuple(t.shape)}")
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor, valid: torch.Tensor,
                 confidence: torch.Tensor, max_disp: float | torch.Tensor) -> torch.Tensor:
         """Refined disparity :math:`(B, 1, H, W)` >= 0 from images :math:`(B, C, H, W)` in [0, 1] and the
-        classical matcher's filled disparity, validity and confidence :math:`(B, 1, H, W)`; ``max_disp`` the
-        range the map was searched in (a number, or one per item)."""
+        classical matchers' filled disparities, validities and confidences :math:`(B, M, H, W)`, one map per
+        base; ``max_disp`` the range the maps were searched in (a number, or one per item)."""
         if self.mode == "select":
             scores, candidates = self.scores(left, right, disparity, valid, confidence, max_disp)
             return candidates.gather(1, scores.argmax(dim=1, keepdim=True))  # ties: the pixel's own value
@@ -122,22 +162,29 @@ class RefineNet(nn.Module):
     def scores(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor, valid: torch.Tensor,
                confidence: torch.Tensor, max_disp: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``select`` mode: candidate scores and candidate disparities, both :math:`(B, K, H, W)`, candidate 0
-        the pixel's own value (:func:`candidate_offsets` gives the order)."""
+        the first map's own value; the first map's candidates in :func:`candidate_offsets`' order, then each
+        further map's in the same order."""
         if self.mode != "select":
             raise StereoInputError(f"mode: scores() needs mode 'select', this network has {self.mode!r}")
         x = self.inputs(left, right, disparity, valid, confidence, max_disp)
         grey_l, grey_r = x[:, :1], standardize_image(right, grey=True)
         ctx = self.score_context(self.body(x))
         scale, far = _range(max_disp, disparity), float(max(self.radii))
+        maps = disparity.shape[1]
         valid_f, conf = valid.to(left.dtype), confidence.to(left.dtype)
         scores, candidates = [], []
-        for dy, dx in candidate_offsets(self.radii):
-            cand = shift(disparity, dy, dx)
-            feats = torch.cat([(grey_l - warp_right(grey_r, cand)).abs(), (grey_l - shift(grey_l, dy, dx)).abs(),
-                               (cand - disparity) / scale, shift(valid_f, dy, dx), shift(conf, dy, dx),
-                               torch.full_like(cand, max(abs(dy), abs(dx)) / far)], 1)
-            scores.append(self.score_out(F.relu(ctx + self.score_candidate(feats))))
-            candidates.append(cand)
+        for m in range(maps):
+            own = disparity[:, m:m + 1]
+            for dy, dx in candidate_offsets(self.radii):
+                cand = shift(own, dy, dx)
+                planes = [(grey_l - warp_right(grey_r, cand)).abs(), (grey_l - shift(grey_l, dy, dx)).abs(),
+                          (cand - disparity[:, :1]) / scale, shift(valid_f[:, m:m + 1], dy, dx),
+                          shift(conf[:, m:m + 1], dy, dx), torch.full_like(cand, max(abs(dy), abs(dx)) / far)]
+                if maps > 1:  # the step from every other map's value, and which map it comes from
+                    planes += [(cand - disparity[:, k:k + 1]) / scale for k in range(1, maps)]
+                    planes.append(torch.full_like(cand, m / (maps - 1)))
+                scores.append(self.score_out(F.relu(ctx + self.score_candidate(torch.cat(planes, 1)))))
+                candidates.append(cand)
         return torch.cat(scores, 1), torch.cat(candidates, 1)
 
 

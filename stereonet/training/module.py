@@ -342,6 +342,8 @@ class RefineModule(StereoModule):
             ``max_disp``, the range they were rendered in, which is what a user passes at inference).
         tolerance: ``select`` only: a candidate within this many pixels of the ground truth counts as right.
         target: ``select`` only: "any" or "keep" (see above).
+        bases: the matchers whose maps the network reads (RefineNet's ``bases``; each runs on every training pair,
+            ``siamese-census-sgm`` with the shipped Siamese weights, frozen).
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
     """
 
@@ -349,30 +351,35 @@ class RefineModule(StereoModule):
 
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 8, 1), max_disp: int = 64,
                  mode: str = "residual", radii: tuple[int, ...] = (1, 3, 9, 27), tolerance: float = 1.0,
-                 target: str = "any", lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000) -> None:
+                 target: str = "any", bases: tuple[str, ...] = ("sgm",), lr: float = 1e-3, weight_decay: float = 1e-4,
+                 schedule_steps: int = 5000) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if not tolerance > 0:
             raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
         if target not in ("any", "keep"):
             raise ValueError(f"target: expected 'any' or 'keep', got {target!r}")
         self.save_hyperparameters()
-        self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii))
+        self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii),
+                               bases=tuple(bases))
 
     def model_config(self) -> dict:
         config = {"channels": self.hparams.channels, "dilations": list(self.hparams.dilations)}
         if self.hparams.mode != "residual":  # residual files keep the first run's config
             config.update(mode=self.hparams.mode, radii=list(self.hparams.radii))
+        if tuple(self.hparams.bases) != ("sgm",):
+            config.update(bases=list(self.hparams.bases))
         return config
 
     def compute(self, batch: dict):
-        from stereonet.matchers.learned import sgm_base  # matchers sit above models; only training reaches up
+        # matchers sit above models; only training reaches up
+        from stereonet.matchers.learned import refine_bases
 
         left, right = batch["left"], batch["right"]
         b, w = left.shape[0], left.shape[-1]
         ranges = batch.get("max_disp") or [self.hparams.max_disp] * b  # each pair's own range, as eval.py gives
         ranges = [max(1, min(int(r), w - 1)) for r in ranges]
         with torch.no_grad():
-            parts = [sgm_base(left[i:i + 1], right[i:i + 1], ranges[i]) for i in range(b)]
+            parts = [refine_bases(self.model.bases, left[i:i + 1], right[i:i + 1], ranges[i]) for i in range(b)]
             base, valid, confidence = (torch.cat(t) for t in zip(*parts))
         gt, gt_valid = batch["disparity"], batch["valid"]
         scale = torch.tensor(ranges, dtype=left.dtype)
@@ -395,5 +402,7 @@ class RefineModule(StereoModule):
             pred = self.model(left, right, base, valid, confidence, scale)
             loss = torch.nn.functional.smooth_l1_loss(pred[gt_valid], gt[gt_valid]) if bool(gt_valid.any()) \
                 else pred.sum() * 0.0
-        errs = disparity_errors(base, gt, gt_valid)
+        for m in range(1, base.shape[1]):  # the further maps' own errors (the first is base_*)
+            extra[f"base{m + 1}_bad2"] = disparity_errors(base[:, m:m + 1], gt, gt_valid)["bad2"]
+        errs = disparity_errors(base[:, :1], gt, gt_valid)
         return loss, pred, {"base_epe": errs["epe"], "base_bad2": errs["bad2"], **extra}

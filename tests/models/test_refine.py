@@ -170,3 +170,58 @@ def test_sgm_refine_follows_the_input_dtype(tmp_path, dtype):
         save_weights(path, "refine", config, RefineNet(**config))
         out = match("sgm-refine", left, right, 16, checkpoint=str(path))
         assert out.disparity.dtype == out.confidence.dtype == dtype and out.valid.dtype == torch.bool
+
+
+def test_two_map_selection_starts_at_the_first_map_and_offers_both():
+    """bases of two matchers: the untrained choice is the first map; the candidates are each map's own value and
+    its neighbours, in that order; each map adds its own input planes."""
+    torch.manual_seed(0)
+    net = RefineNet(channels=4, dilations=(1, 2), mode="select", radii=(1, 4), bases=("siamese-census-sgm", "sgm"))
+    left, right = _pair()
+    disp = torch.rand(1, 2, *left.shape[-2:]) * 8
+    valid, conf = disp > 2, torch.rand_like(disp)
+    assert net.inputs(left, right, disp, valid, conf, 16).shape[1] == INPUT_CHANNELS + 4
+    scores, cands = net.scores(left, right, disp, valid, conf, 16)
+    k = len(candidate_offsets((1, 4)))
+    assert scores.shape[1] == cands.shape[1] == 2 * k
+    assert torch.equal(cands[:, :1], disp[:, :1]) and torch.equal(cands[:, k:k + 1], disp[:, 1:])
+    assert torch.equal(net(left, right, disp, valid, conf, 16), disp[:, :1])
+    torch.nn.init.normal_(net.score_out.weight)  # a trained head may take the second map's value
+    torch.nn.init.normal_(net.score_out.bias)
+    out = net(left, right, disp, valid, conf, 16)
+    assert bool(((cands - out).abs() < 1e-6).any(1).all())
+    with pytest.raises(StereoInputError, match=r"disparity: expected \(B, 2, H, W\)"):
+        net(left, right, disp[:, :1], valid, conf, 16)
+
+
+def test_refine_net_rejects_bad_bases():
+    with pytest.raises(StereoInputError, match="bases"):
+        RefineNet(mode="select", bases=("sgm", "opencv-sgbm"))
+    with pytest.raises(StereoInputError, match="bases"):
+        RefineNet(mode="select", bases=("sgm", "sgm"))
+    with pytest.raises(StereoInputError, match="bases: more than one map needs mode 'select'"):
+        RefineNet(bases=("siamese-census-sgm", "sgm"))
+
+
+def test_sgm_refine_matcher_runs_a_two_map_selection_file(tmp_path):
+    """A file whose network reads siamese-census-sgm and sgm: the matcher runs both (the shipped Siamese weights),
+    an untrained file returns the first map filled, and any scores pick one candidate of either map."""
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import refine_bases
+
+    config = {"channels": 4, "dilations": [1], "mode": "select", "radii": [2], "bases": ["siamese-census-sgm", "sgm"]}
+    net = RefineNet(**config)
+    path = tmp_path / "refine.pt"
+    save_weights(path, "refine", config, net)
+    left, right = _pair(32, 64, 4)
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    maps, valid, conf = refine_bases(("siamese-census-sgm", "sgm"), left, right, 16)
+    assert maps.shape[1] == valid.shape[1] == conf.shape[1] == 2
+    assert torch.equal(out.disparity, maps[:, :1]) and bool(out.valid.all())
+    assert torch.equal(maps[:, 1:], refine_bases(("sgm",), left, right, 16)[0])
+    torch.nn.init.normal_(net.score_out.weight)
+    torch.nn.init.normal_(net.score_out.bias)
+    save_weights(path, "refine", config, net)
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    cands = torch.cat([shift(maps[:, m:m + 1], dy, dx) for m in range(2) for dy, dx in candidate_offsets((2,))], 1)
+    assert bool(((cands - out.disparity).abs() < 1e-6).any(1).all())

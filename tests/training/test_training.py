@@ -407,3 +407,19 @@ def test_validation_jitter_is_fixed_per_pair_and_leaves_ground_truth_alone():
         torch.testing.assert_close(x["left"], c["left"])
         torch.testing.assert_close(x["disparity"], c["disparity"])
     assert sum(not torch.allclose(x["right"], c["right"]) for c, x in zip(clean, a)) >= 3
+
+
+def test_refine_module_two_maps_start_at_the_first_and_log_both(one_thread):
+    """bases=(siamese-census-sgm, sgm): the untrained choice is the first map (base_bad2), the second map's own
+    error is logged (base2_bad2), the oracle over both maps' candidates is no worse than either; the exported
+    config names the bases."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = RefineModule(channels=8, dilations=(1, 2), mode="select", radii=(1, 3), target="keep",
+                          bases=("siamese-census-sgm", "sgm"))
+    loss, pred, extra = module.compute(batch)
+    errs = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
+    assert torch.allclose(errs["bad2"], extra["base_bad2"])
+    assert extra["oracle_bad2"] <= min(extra["base_bad2"], extra["base2_bad2"])
+    assert abs(float(loss.detach()) - math.log(34)) < 1e-5
+    assert module.model_config()["bases"] == ["siamese-census-sgm", "sgm"]
