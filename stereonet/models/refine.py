@@ -83,7 +83,8 @@ class RefineNet(nn.Module):
         channels: width of every hidden layer.
         dilations: one 3x3 convolution per entry, with that dilation (zero-padded, same size).
         mode: "residual" or "select" (see the module docstring).
-        radii: distances in pixels of the neighbours whose values are candidates (``select`` only).
+        radii: distances in pixels of the neighbours whose values are candidates (``select`` only; empty with
+            two or more bases: the candidates are the maps' own values at the pixel, a choice between matchers).
         bases: the matchers whose maps it reads, in the order of the map channels (:data:`BASES`; more than one
             with ``select`` only).
     """
@@ -98,9 +99,10 @@ class RefineNet(nn.Module):
             raise StereoInputError(f"dilations: expected a non-empty list of integers >= 1, got {list(dilations)}")
         if mode not in MODES:
             raise StereoInputError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
-        if mode == "select" and (not radii or any(int(r) < 1 for r in radii)):
-            raise StereoInputError(f"radii: expected a non-empty list of integers >= 1, got {list(radii)}")
         bases = tuple(bases)
+        if mode == "select" and ((not radii and len(bases) < 2) or any(int(r) < 1 for r in radii)):
+            raise StereoInputError(f"radii: expected a list of integers >= 1 (empty only with two or more bases), "
+                                   f"got {list(radii)}")
         if not bases or any(b not in BASES for b in bases) or len(set(bases)) < len(bases):
             raise StereoInputError(f"bases: expected distinct names from {', '.join(BASES)}, got {list(bases)}")
         if len(bases) > 1 and mode != "select":
@@ -169,7 +171,7 @@ class RefineNet(nn.Module):
         x = self.inputs(left, right, disparity, valid, confidence, max_disp)
         grey_l, grey_r = x[:, :1], standardize_image(right, grey=True)
         ctx = self.score_context(self.body(x))
-        scale, far = _range(max_disp, disparity), float(max(self.radii))
+        scale, far = _range(max_disp, disparity), float(max(self.radii, default=1))
         maps = disparity.shape[1]
         valid_f, conf = valid.to(left.dtype), confidence.to(left.dtype)
         scores, candidates = [], []

@@ -321,6 +321,10 @@ class SiameseModule(StereoModule):
         return loss, pred, {}
 
 
+TARGETS = ("any", "keep", "decisive")
+"""RefineModule's select-mode targets."""
+
+
 class RefineModule(StereoModule):
     """Trains :class:`~stereonet.models.refine.RefineNet` on the classical ``sgm``'s maps of the training pairs.
 
@@ -332,7 +336,9 @@ class RefineModule(StereoModule):
     pixels of the ground truth, on the pixels that have one: with ``target="any"`` the loss is the log of the
     probability summed over every right candidate (the choice among them left free); with ``target="keep"`` it
     is the cross-entropy of one target per pixel, the pixel's own value when it is right, else the right candidate
-    closest to the ground truth. "keep" matches what inference does (the top-scoring candidate): under "any" the
+    closest to the ground truth; ``target="decisive"`` is "keep" on the pixels where some candidates are right and
+    some are not (where every candidate is right the choice changes nothing, and those pixels, most of an image,
+    otherwise teach only "keep the first map"). "keep" matches what inference does (the top-scoring candidate): under "any" the
     mass can sit on a set of right candidates while a single wrong one scores highest (the first select run). ``base_epe`` and ``base_bad2`` log the classical map's own
     errors, so the curve shows the gain over ``sgm``; ``oracle_bad2`` (select) the best any choice could do.
 
@@ -341,7 +347,7 @@ class RefineModule(StereoModule):
         max_disp: disparity range given to ``sgm`` for pairs that carry none (data_gen pairs carry their own
             ``max_disp``, the range they were rendered in, which is what a user passes at inference).
         tolerance: ``select`` only: a candidate within this many pixels of the ground truth counts as right.
-        target: ``select`` only: "any" or "keep" (see above).
+        target: ``select`` only: "any", "keep" or "decisive" (see above).
         bases: the matchers whose maps the network reads (RefineNet's ``bases``; each runs on every training pair,
             ``siamese-census-sgm`` with the shipped Siamese weights, frozen).
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
@@ -356,8 +362,8 @@ class RefineModule(StereoModule):
         super().__init__(lr, weight_decay, schedule_steps)
         if not tolerance > 0:
             raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
-        if target not in ("any", "keep"):
-            raise ValueError(f"target: expected 'any' or 'keep', got {target!r}")
+        if target not in TARGETS:
+            raise ValueError(f"target: expected one of {', '.join(TARGETS)}, got {target!r}")
         self.save_hyperparameters()
         self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii),
                                bases=tuple(bases))
@@ -388,7 +394,9 @@ class RefineModule(StereoModule):
             scores, candidates = self.model.scores(left, right, base, valid, confidence, scale)
             right_ones = (candidates - gt).abs() <= self.hparams.tolerance
             usable = gt_valid[:, 0] & right_ones.any(1)
-            if self.hparams.target == "keep":  # own value if right, else the closest right candidate
+            if self.hparams.target == "decisive":  # only where the choice matters: some candidates right, some not
+                usable &= ~right_ones.all(1)
+            if self.hparams.target in ("keep", "decisive"):  # own value if right, else the closest right candidate
                 closest = (candidates - gt).abs().argmin(1)
                 index = torch.where(right_ones[:, 0], torch.zeros_like(closest), closest)
                 log_p = torch.log_softmax(scores, 1).gather(1, index[:, None])[:, 0]

@@ -64,6 +64,8 @@ def test_refine_net_rejects_bad_config():
         RefineNet(mode="blend")
     with pytest.raises(StereoInputError, match="radii"):
         RefineNet(mode="select", radii=[0])
+    with pytest.raises(StereoInputError, match="radii"):
+        RefineNet(mode="select", radii=[])  # one map and no neighbours: nothing to choose from
     with pytest.raises(StereoInputError, match="select"):
         RefineNet().scores(*_pair(), torch.ones(1, 1, 24, 40), torch.ones(1, 1, 24, 40, dtype=torch.bool),
                            torch.ones(1, 1, 24, 40), 16)
@@ -225,3 +227,19 @@ def test_sgm_refine_matcher_runs_a_two_map_selection_file(tmp_path):
     out = match("sgm-refine", left, right, 16, checkpoint=str(path))
     cands = torch.cat([shift(maps[:, m:m + 1], dy, dx) for m in range(2) for dy, dx in candidate_offsets((2,))], 1)
     assert bool(((cands - out.disparity).abs() < 1e-6).any(1).all())
+
+
+def test_choice_between_two_maps_without_neighbours():
+    """radii=() with two bases: the candidates are the two maps' own values; untrained, the first wins; a trained
+    head picks one of the two at every pixel."""
+    torch.manual_seed(0)
+    net = RefineNet(channels=4, dilations=(1,), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"))
+    left, right = _pair()
+    disp = torch.rand(1, 2, *left.shape[-2:]) * 8
+    valid, conf = disp > 2, torch.rand_like(disp)
+    scores, cands = net.scores(left, right, disp, valid, conf, 16)
+    assert scores.shape[1] == 2 and torch.equal(cands, disp)
+    assert torch.equal(net(left, right, disp, valid, conf, 16), disp[:, :1])
+    torch.nn.init.normal_(net.score_out.weight)
+    out = net(left, right, disp, valid, conf, 16)
+    assert bool(((out == disp[:, :1]) | (out == disp[:, 1:])).all())

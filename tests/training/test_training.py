@@ -423,3 +423,17 @@ def test_refine_module_two_maps_start_at_the_first_and_log_both(one_thread):
     assert extra["oracle_bad2"] <= min(extra["base_bad2"], extra["base2_bad2"])
     assert abs(float(loss.detach()) - math.log(34)) < 1e-5
     assert module.model_config()["bases"] == ["siamese-census-sgm", "sgm"]
+
+
+def test_refine_module_decisive_target_scores_only_the_pixels_where_the_choice_matters(one_thread):
+    """target="decisive" with the two maps' own values as the only candidates: the loss at the start is log 2
+    (two tied candidates) over the pixels where exactly one map is right; a few steps lower it."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    kwargs = dict(channels=8, dilations=(1, 2), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"))
+    module = RefineModule(target="decisive", **kwargs)
+    loss, _, extra = module.compute(batch)
+    assert abs(float(loss.detach()) - math.log(2)) < 1e-5
+    assert extra["oracle_bad2"] <= min(extra["base_bad2"], extra["base2_bad2"])
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 1e-2)
+    assert final < first, (first, final)
