@@ -325,12 +325,15 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
 
 
 @register("sgm-refine", kind="learned", needs_weights=True,
-          description="sgm, then a learned residual refinement of its filled map (weights/refine.pt)")
+          description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt)")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                        backend: str = "torch", **options) -> StereoOutput:
-    """``sgm`` (options as for ``sgm``) with its invalid pixels filled, then :class:`~stereonet.models.refine.RefineNet`
-    adds a residual read from the images, the map, its validity and confidence. Every pixel is valid; the
-    confidence is ``sgm``'s (the refinement does not re-rank it). ``backend``: "torch" only."""
+    """The maps of the weights file's base matchers (its ``bases``; options go to ``sgm``), each with its invalid
+    pixels filled, then :class:`~stereonet.models.refine.RefineNet` reads the images and the maps with their
+    validity and confidence and returns, per pixel, a residual on the map or (``select`` files) one of the
+    candidate values. The shipped ``refine.pt`` chooses between ``siamese-census-sgm`` and ``sgm`` at each pixel
+    (model card, seventeenth session); older files refine ``sgm`` alone. Every pixel is valid; the confidence is
+    the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
     net = load_network("refine", checkpoint)
