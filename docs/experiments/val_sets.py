@@ -1,7 +1,7 @@
 """The data_gen validation sets of the fused-cost experiments (seeds 5150/5151, not the benchmark's): ``val2``
 (12 pairs, difficulty 2) and ``val4`` (8 pairs, difficulty 4); ``val2b``/``val4b`` the same sizes on seeds 5152/5153
 (first used by the seventeenth session's confirmation of sgm-refine-choose), ``val2c``/``val4c`` on seeds 5154/5155
-(its resumed run); any other spec as eval.py reads it. ``compare``
+(its resumed run), ``val2d``/``val4d`` on seeds 5156/5157 (the three-map run); any other spec as eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
 
@@ -22,6 +22,10 @@ def load(spec):
         return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5154, difficulty=2), spec)
     if spec == "val4c":
         return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5155, difficulty=4), spec)
+    if spec == "val2d":
+        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5156, difficulty=2), spec)
+    if spec == "val4d":
+        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5157, difficulty=4), spec)
     return load_dataset(spec)
 
 

@@ -305,7 +305,7 @@ def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_optio
 def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_options):
     """The maps of the matchers ``bases`` (:data:`stereonet.models.refine.BASES`) as a RefineNet reads them:
     each filled by the shared rule, stacked along the channels as ``(disparity, valid, confidence)``, each
-    :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; ``siamese-census-sgm`` runs with the shipped weights."""
+    :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; the Siamese matchers run with the shipped weights."""
     from stereonet.matchers.local import sgm
     from stereonet.select.fill import fill_occlusions
 
@@ -315,6 +315,8 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
             out = sgm(left, right, max_disp, **sgm_options)
         elif name == "siamese-census-sgm":
             out = siamese_census_sgm_matcher(left, right, max_disp)
+        elif name == "siamese-sgm":
+            out = siamese_sgm_matcher(left, right, max_disp)
         else:
             raise StereoInputError(f"bases: unknown base matcher {name!r}")
         confidence = out.confidence if out.confidence is not None else out.valid.to(left.dtype)

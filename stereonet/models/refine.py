@@ -52,7 +52,7 @@ CANDIDATE_CHANNELS = 6
 and confidence, its distance / the largest radius (one map; with M maps also the step from each other map's value
 and the source map's index / (M - 1): M more)."""
 
-BASES = ("sgm", "siamese-census-sgm")
+BASES = ("sgm", "siamese-census-sgm", "siamese-sgm")
 """Matchers whose maps a RefineNet may read (``bases``)."""
 
 MODES = ("residual", "select")
