@@ -243,3 +243,21 @@ def test_choice_between_two_maps_without_neighbours():
     torch.nn.init.normal_(net.score_out.weight)
     out = net(left, right, disp, valid, conf, 16)
     assert bool(((out == disp[:, :1]) | (out == disp[:, 1:])).all())
+
+
+def test_refine_bases_stacks_each_named_matcher_filled():
+    """refine_bases: one channel per named matcher, in order, each that matcher's map with the shared fill."""
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import refine_bases
+    from stereonet.select.fill import fill_occlusions
+
+    left, right = _pair(32, 64, 4)
+    names = ("siamese-census-sgm", "sgm", "siamese-sgm")
+    maps, valid, conf = refine_bases(names, left, right, 16)
+    assert maps.shape[1] == valid.shape[1] == conf.shape[1] == 3
+    for i, name in enumerate(names):
+        out = match(name, left, right, 16)
+        assert torch.equal(maps[:, i:i + 1], fill_occlusions(out.disparity, out.valid))
+        assert torch.equal(valid[:, i:i + 1], out.valid)
+    with pytest.raises(StereoInputError, match="bases"):
+        refine_bases(("dispnet",), left, right, 16)
