@@ -8,24 +8,15 @@ import functools
 import data_gen
 from stereonet.data import _SyntheticItems, load_dataset
 
+SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "val4b": (8, 5153, 4),
+        "val2c": (12, 5154, 2), "val4c": (8, 5155, 4), "val2d": (12, 5156, 2), "val4d": (8, 5157, 4)}
+"""spec -> (pairs, seed, difficulty)."""
+
 
 def load(spec):
-    if spec == "val2":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5150, difficulty=2), spec)
-    if spec == "val4":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5151, difficulty=4), spec)
-    if spec == "val2b":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5152, difficulty=2), spec)
-    if spec == "val4b":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5153, difficulty=4), spec)
-    if spec == "val2c":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5154, difficulty=2), spec)
-    if spec == "val4c":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5155, difficulty=4), spec)
-    if spec == "val2d":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=12, seed=5156, difficulty=2), spec)
-    if spec == "val4d":
-        return _SyntheticItems(data_gen.SyntheticStereo(count=8, seed=5157, difficulty=4), spec)
+    if spec in SETS:
+        count, seed, difficulty = SETS[spec]
+        return _SyntheticItems(data_gen.SyntheticStereo(count=count, seed=seed, difficulty=difficulty), spec)
     return load_dataset(spec)
 
 
