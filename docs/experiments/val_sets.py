@@ -2,7 +2,8 @@
 (12 pairs, difficulty 2) and ``val4`` (8 pairs, difficulty 4); ``val2b``/``val4b`` the same sizes on seeds 5152/5153
 (first used by the seventeenth session's confirmation of sgm-refine-choose), ``val2c``/``val4c`` on seeds 5154/5155
 (its resumed run), ``val2d``/``val4d`` on seeds 5156/5157 (the three-map run), ``val2e``/``val4e`` on
-seeds 5158/5159 (the eighteenth session's left-right fallback); any other spec as eval.py reads it. ``compare``
+seeds 5158/5159 (the eighteenth session's left-right fallback), ``val2f``/``val4f`` on seeds 5160/5161 (its census
+evidence run); any other spec as eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
 
@@ -11,7 +12,7 @@ from stereonet.data import _SyntheticItems, load_dataset
 
 SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "val4b": (8, 5153, 4),
         "val2c": (12, 5154, 2), "val4c": (8, 5155, 4), "val2d": (12, 5156, 2), "val4d": (8, 5157, 4),
-        "val2e": (12, 5158, 2), "val4e": (8, 5159, 4)}
+        "val2e": (12, 5158, 2), "val4e": (8, 5159, 4), "val2f": (12, 5160, 2), "val4f": (8, 5161, 4)}
 """spec -> (pairs, seed, difficulty)."""
 
 

@@ -56,6 +56,11 @@ BASES = ("sgm", "siamese-census-sgm", "siamese-sgm")
 """Matchers whose maps a RefineNet may read (``bases``)."""
 
 MODES = ("residual", "select")
+EVIDENCE = ("pixel", "census")
+"""Per-candidate evidence of a ``select`` network: ``"pixel"`` the planes of :data:`CANDIDATE_CHANNELS`;
+``"census"`` adds the windowed census distance of the candidate (:func:`census_distance`), one more plane."""
+CENSUS_RADIUS = 2
+"""5x5 census (24 sign comparisons with the centre), averaged over a 5x5 box."""
 DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
 
 
@@ -75,6 +80,31 @@ def shift(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:
     return xp[..., top + dy:top + dy + h, left + dx:left + dx + w].to(x.dtype)
 
 
+def census_distance(grey_l: torch.Tensor, warped_r: torch.Tensor, radius: int = CENSUS_RADIUS) -> torch.Tensor:
+    """Windowed census distance in [0, 1] between the left image and the right image warped by a candidate map.
+
+    At each pixel, the share of the ``(2r + 1)^2 - 1`` neighbours whose order against the centre (brighter or
+    not) differs between ``grey_l`` and ``warped_r`` (both :math:`(B, 1, H, W)`), averaged over a
+    ``(2r + 1)^2`` box. Unlike the grey residual it does not change under a monotonic change of brightness (a
+    different exposure or gain in the right camera), and the window makes it a local matching cost rather than
+    one pixel's difference: the evidence a classical matcher trusts, given here per candidate.
+    """
+    k = 2 * radius + 1
+    pl = F.pad(grey_l, (radius,) * 4, mode="replicate")
+    pr = F.pad(warped_r, (radius,) * 4, mode="replicate")
+    h, w = grey_l.shape[-2:]
+    differ = torch.zeros_like(grey_l)
+    for dy in range(k):
+        for dx in range(k):
+            if dy == radius and dx == radius:
+                continue
+            bl = pl[..., dy:dy + h, dx:dx + w] > grey_l
+            br = pr[..., dy:dy + h, dx:dx + w] > warped_r
+            differ = differ + (bl != br).to(grey_l.dtype)
+    differ = differ / float(k * k - 1)
+    return F.avg_pool2d(F.pad(differ, (radius,) * 4, mode="replicate"), k, stride=1)
+
+
 class RefineNet(nn.Module):
     """Refinement of a disparity map: a regressed residual (``mode="residual"``) or a choice among the map's own
     values at the pixel and its neighbours (``mode="select"``).
@@ -87,11 +117,13 @@ class RefineNet(nn.Module):
             two or more bases: the candidates are the maps' own values at the pixel, a choice between matchers).
         bases: the matchers whose maps it reads, in the order of the map channels (:data:`BASES`; more than one
             with ``select`` only).
+        evidence: per-candidate evidence of a ``select`` network (:data:`EVIDENCE`): ``"census"`` adds each
+            candidate's windowed census distance (:func:`census_distance`).
     """
 
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] | list[int] = (1, 2, 4, 8, 1),
                  mode: str = "residual", radii: tuple[int, ...] | list[int] = (1, 3, 9, 27),
-                 bases: tuple[str, ...] | list[str] = ("sgm",)) -> None:
+                 bases: tuple[str, ...] | list[str] = ("sgm",), evidence: str = "pixel") -> None:
         super().__init__()
         if channels < 1:
             raise StereoInputError(f"channels: expected >= 1, got {channels}")
@@ -105,10 +137,13 @@ class RefineNet(nn.Module):
                                    f"got {list(radii)}")
         if not bases or any(b not in BASES for b in bases) or len(set(bases)) < len(bases):
             raise StereoInputError(f"bases: expected distinct names from {', '.join(BASES)}, got {list(bases)}")
+        if evidence not in EVIDENCE or (evidence != "pixel" and mode != "select"):
+            raise StereoInputError(f"evidence: expected one of {', '.join(EVIDENCE)} ('census' with mode 'select'), "
+                                   f"got {evidence!r} with mode {mode!r}")
         if len(bases) > 1 and mode != "select":
             raise StereoInputError(f"bases: more than one map needs mode 'select', got mode {mode!r}")
         self.channels, self.dilations = int(channels), tuple(int(d) for d in dilations)
-        self.mode, self.radii, self.bases = mode, tuple(int(r) for r in radii), bases
+        self.mode, self.radii, self.bases, self.evidence = mode, tuple(int(r) for r in radii), bases, evidence
         maps = len(bases)
         in_channels = INPUT_CHANNELS + PLANES_PER_MAP * (maps - 1)
         mods: list[nn.Module] = [nn.Conv2d(in_channels, self.channels, 3, padding=1), nn.ReLU(inplace=True)]
@@ -121,7 +156,7 @@ class RefineNet(nn.Module):
             nn.init.zeros_(self.head.bias)
         else:  # score_k = w2 . relu(A ctx + B f_k + b): A ctx once per pixel, B f_k per candidate
             self.score_context = nn.Conv2d(self.channels, self.channels, 1)
-            extra = maps if maps > 1 else 0
+            extra = (maps if maps > 1 else 0) + (1 if evidence == "census" else 0)
             self.score_candidate = nn.Conv2d(CANDIDATE_CHANNELS + extra, self.channels, 1, bias=False)
             self.score_out = nn.Conv2d(self.channels, 1, 1)
             nn.init.zeros_(self.score_out.weight)
@@ -179,12 +214,15 @@ class RefineNet(nn.Module):
             own = disparity[:, m:m + 1]
             for dy, dx in candidate_offsets(self.radii):
                 cand = shift(own, dy, dx)
-                planes = [(grey_l - warp_right(grey_r, cand)).abs(), (grey_l - shift(grey_l, dy, dx)).abs(),
+                warped = warp_right(grey_r, cand)
+                planes = [(grey_l - warped).abs(), (grey_l - shift(grey_l, dy, dx)).abs(),
                           (cand - disparity[:, :1]) / scale, shift(valid_f[:, m:m + 1], dy, dx),
                           shift(conf[:, m:m + 1], dy, dx), torch.full_like(cand, max(abs(dy), abs(dx)) / far)]
                 if maps > 1:  # the step from every other map's value, and which map it comes from
                     planes += [(cand - disparity[:, k:k + 1]) / scale for k in range(1, maps)]
                     planes.append(torch.full_like(cand, m / (maps - 1)))
+                if self.evidence == "census":
+                    planes.append(census_distance(grey_l, warped))
                 scores.append(self.score_out(F.relu(ctx + self.score_candidate(torch.cat(planes, 1)))))
                 candidates.append(cand)
         return torch.cat(scores, 1), torch.cat(candidates, 1)

@@ -343,7 +343,7 @@ class RefineModule(StereoModule):
     errors, so the curve shows the gain over ``sgm``; ``oracle_bad2`` (select) the best any choice could do.
 
     Args:
-        channels, dilations, mode, radii: the network's (see RefineNet).
+        channels, dilations, mode, radii, evidence: the network's (see RefineNet).
         max_disp: disparity range given to ``sgm`` for pairs that carry none (data_gen pairs carry their own
             ``max_disp``, the range they were rendered in, which is what a user passes at inference).
         tolerance: ``select`` only: a candidate within this many pixels of the ground truth counts as right.
@@ -358,7 +358,7 @@ class RefineModule(StereoModule):
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 8, 1), max_disp: int = 64,
                  mode: str = "residual", radii: tuple[int, ...] = (1, 3, 9, 27), tolerance: float = 1.0,
                  target: str = "any", bases: tuple[str, ...] = ("sgm",), lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000) -> None:
+                 schedule_steps: int = 5000, evidence: str = "pixel") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if not tolerance > 0:
             raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
@@ -366,7 +366,7 @@ class RefineModule(StereoModule):
             raise ValueError(f"target: expected one of {', '.join(TARGETS)}, got {target!r}")
         self.save_hyperparameters()
         self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii),
-                               bases=tuple(bases))
+                               bases=tuple(bases), evidence=evidence)
 
     def model_config(self) -> dict:
         config = {"channels": self.hparams.channels, "dilations": list(self.hparams.dilations)}
@@ -374,6 +374,8 @@ class RefineModule(StereoModule):
             config.update(mode=self.hparams.mode, radii=list(self.hparams.radii))
         if tuple(self.hparams.bases) != ("sgm",):
             config.update(bases=list(self.hparams.bases))
+        if self.hparams.get("evidence", "pixel") != "pixel":  # older files have no such key
+            config.update(evidence=self.hparams.evidence)
         return config
 
     def compute(self, batch: dict):
