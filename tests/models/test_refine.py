@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from stereonet.checks import StereoInputError
-from stereonet.models.refine import INPUT_CHANNELS, RefineNet, candidate_offsets, shift
+from stereonet.models.refine import INPUT_CHANNELS, RefineNet, candidate_offsets, census_distance, shift
 from stereonet.models.weights import load_weights, save_weights
 
 
@@ -261,3 +261,52 @@ def test_refine_bases_stacks_each_named_matcher_filled():
         assert torch.equal(valid[:, i:i + 1], out.valid)
     with pytest.raises(StereoInputError, match="bases"):
         refine_bases(("dispnet",), left, right, 16)
+
+
+def test_census_distance_ignores_brightness_and_sees_a_wrong_disparity():
+    """0 for the same image and for a monotonic brightness change (gain, offset, gamma), in [0, 1], and larger
+    for the right image warped by a wrong disparity than by the true one."""
+    from stereonet.models.layers import standardize_image, warp_right
+
+    left, right = _pair(32, 48, 3)
+    grey_l, grey_r = standardize_image(left, grey=True), standardize_image(right, grey=True)
+    assert float(census_distance(grey_l, grey_l).abs().max()) == 0.0
+    assert float(census_distance(grey_l, (0.5 * grey_l + 3.0) ** 3).abs().max()) == 0.0
+    true = warp_right(grey_r, torch.full_like(grey_l, 3.0))
+    wrong = warp_right(grey_r, torch.full_like(grey_l, 7.0))
+    inner = (slice(None), slice(None), slice(4, -4), slice(12, -4))  # away from the borders the warp replicates
+    d_true, d_wrong = census_distance(grey_l, true)[inner], census_distance(grey_l, wrong)[inner]
+    assert float(d_true.max()) == 0.0 and float(d_wrong.mean()) > 0.2
+    noise = census_distance(grey_l, torch.rand_like(grey_l))
+    assert 0.0 <= float(noise.min()) and float(noise.max()) <= 1.0
+
+
+def test_census_evidence_adds_one_candidate_plane_and_keeps_the_untrained_choice(tmp_path):
+    """evidence="census": one more input to the candidate scorer, the untrained network still returns the first
+    map, a trained head reads the plane (changing it changes the scores), and a weights file keeps the option."""
+    from stereonet.matchers.learned import load_network
+
+    torch.manual_seed(0)
+    kw = dict(channels=4, dilations=(1,), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"))
+    plain, census = RefineNet(**kw), RefineNet(**kw, evidence="census")
+    assert census.score_candidate.in_channels == plain.score_candidate.in_channels + 1
+    left, right = _pair()
+    disp = torch.rand(1, 2, *left.shape[-2:]) * 8
+    valid, conf = disp > 2, torch.rand_like(disp)
+    assert torch.equal(census(left, right, disp, valid, conf, 16), disp[:, :1])
+    torch.nn.init.normal_(census.score_out.weight)
+    with torch.no_grad():
+        census.score_candidate.weight[:, -1] = 0.0
+        before, _ = census.scores(left, right, disp, valid, conf, 16)
+        census.score_candidate.weight[:, -1] = 5.0
+        after, _ = census.scores(left, right, disp, valid, conf, 16)
+    assert not torch.allclose(before, after)
+    config = {"channels": 4, "dilations": [1], "mode": "select", "radii": [], "bases": ["siamese-census-sgm", "sgm"],
+              "evidence": "census"}
+    save_weights(tmp_path / "refine.pt", "refine", config, census)
+    loaded = load_network("refine", str(tmp_path / "refine.pt"))
+    assert loaded.evidence == "census"
+    with pytest.raises(StereoInputError, match="evidence"):
+        RefineNet(channels=4, dilations=(1,), evidence="census")  # residual mode has no candidates
+    with pytest.raises(StereoInputError, match="evidence"):
+        RefineNet(**kw, evidence="ncc")
