@@ -56,6 +56,50 @@ def census_khw(grey, window, bits_per_word):
 
 
 @intrinsic
+def float32_from_bits(typingctx, x):
+    """The float32 whose IEEE-754 bits are the low 32 bits of the integer ``x`` (a register bitcast, vectorisable;
+    numba widens integer arithmetic to 64 bits, so the value is truncated first)."""
+    if not (isinstance(x, types.Integer) and x.bitwidth in (32, 64)):
+        return None
+
+    def codegen(context, builder, signature, args):
+        v = args[0]
+        if signature.args[0].bitwidth == 64:
+            v = builder.trunc(v, context.get_value_type(types.int32))
+        return builder.bitcast(v, context.get_value_type(types.float32))
+
+    return types.float32(x), codegen
+
+
+_LOG2E = np.float32(1.44269504088896341)
+_LN2_HI = np.float32(0.693359375)  # ln 2 = _LN2_HI + _LN2_LO; _LN2_HI has few bits, so k * _LN2_HI is exact
+_LN2_LO = np.float32(-2.12194440e-4)
+_EXP_P = (np.float32(1.9875691500e-4), np.float32(1.3981999507e-3), np.float32(8.3334519073e-3),
+          np.float32(4.1665795894e-2), np.float32(1.6666665459e-1), np.float32(5.0000001201e-1))
+_EXP_MIN, _EXP_MAX, _HALF, _ONE = np.float32(-87.0), np.float32(88.0), np.float32(0.5), np.float32(1.0)
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def exp_f32(x):  # pragma: no cover - compiled
+    """``exp(x)`` of a float32 in float32 without a library call, so a loop over it vectorises (numba has no
+    vector ``exp`` without Intel's SVML): ``x = k ln 2 + r``, ``|r| <= ln 2 / 2``, a degree-7 polynomial for
+    ``e^r`` (the coefficients of Moshier's Cephes ``expf``, about 1 ulp) and ``2^k`` put into the exponent bits.
+    ``x`` is clamped to [-87, 88] (float32's normal range): below, the result is ``e^-87`` ~ 1.6e-38 instead
+    of a subnormal or 0."""
+    x = _EXP_MIN if x < _EXP_MIN else x
+    x = _EXP_MAX if x > _EXP_MAX else x
+    k = np.floor(x * _LOG2E + _HALF)
+    r = (x - k * _LN2_HI) - k * _LN2_LO
+    p = _EXP_P[0] * r + _EXP_P[1]
+    p = p * r + _EXP_P[2]
+    p = p * r + _EXP_P[3]
+    p = p * r + _EXP_P[4]
+    p = p * r + _EXP_P[5]
+    p = (p * (r * r) + r) + _ONE
+    return p * float32_from_bits((np.int64(k) + 127) << 23)
+
+
+@intrinsic
 def popcount64(typingctx, x):
     """Set bits of a uint64 as LLVM's ``ctpop`` (one POPCNT, or a vectorised nibble-table count inside a
     vectorised loop: about twice the speed of the shift-and-mask SWAR count it replaced, the same value)."""
