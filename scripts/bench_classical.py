@@ -19,7 +19,6 @@ Not a test: timings depend on the machine and its load; the targets (``sgm`` <= 
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
@@ -29,7 +28,8 @@ from pathlib import Path
 import torch
 
 from stereonet import matchers, metrics
-from stereonet.cli.common import PeakMemory, add_malloc_argument, apply_malloc_argument
+from stereonet.checks import StereoInputError
+from stereonet.cli.common import OneLineParser, PeakMemory, add_malloc_argument, apply_malloc_argument
 from stereonet.io.atomic import atomic_write_text
 from stereonet.select.fill import fill_occlusions
 
@@ -86,7 +86,7 @@ def bad2_filled(name: str, item: dict) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="scripts/bench_classical.py", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="scripts/bench_classical.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--methods", default=",".join(["opencv-sgbm", "sgm", "opencv-bm", *BM]),
                    help="methods to time on Cones (OpenCV references are added when needed); "
@@ -109,7 +109,13 @@ def main(argv: list[str] | None = None) -> int:
         cv2.setNumThreads(1)
         clock = time.process_time
 
-    methods = [matchers.register_checkpoint_variant(m) for m in args.methods.split(",") if m]
+    acc = [m for m in args.accuracy.split(",") if m]
+    try:  # every name checked before anything runs: a typo is one line, not a traceback after the timings
+        methods = [matchers.register_checkpoint_variant(m) for m in args.methods.split(",") if m]
+        for m in methods + acc:
+            matchers.spec(m)
+    except (StereoInputError, FileNotFoundError) as e:
+        p.error(f"--methods/--accuracy: {e}")
     for m in list(methods):
         ref = reference(m)
         if ref and ref not in methods:
@@ -125,7 +131,6 @@ def main(argv: list[str] | None = None) -> int:
             ratio = "" if r["ratio"] is None else f"{r['ratio']:.2f}"
             print(f"{m:18s} {r['seconds']:9.4f} {ratio:>7s} {reference(m) or '':>12s} {r['peak_mib']:9.1f}")
 
-    acc = [m for m in args.accuracy.split(",") if m]
     if acc:
         from stereonet.data import load_dataset
 

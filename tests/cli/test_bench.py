@@ -100,3 +100,18 @@ def test_counterpart_ratios_hold_block_matchers_against_opencv_bm():
     assert (rows["sgm"]["median"], rows["sgm"]["worst"]) == (2.0, 3.0)
     lines = bench.counterpart_table(list(rows.values()), ["real"])
     assert "| `bm-sad` | `opencv-bm` | 1.25 | 1.50 |" in lines and "| `sgm` | `opencv-sgbm` | 2.00 | 3.00 |" in lines
+
+
+def test_bench_classical_bad_method_is_one_line_before_anything_runs(capsys):
+    """scripts/bench_classical.py checks --methods and --accuracy names first: a typo is one line and exit 2."""
+    import pytest
+
+    spec = importlib.util.spec_from_file_location("stereonet_bench_classical", REPO / "scripts" / "bench_classical.py")
+    classical = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(classical)
+    for argv in (["--methods", "bm-sad", "--accuracy", "none"], ["--methods", "bm-foo", "--accuracy", ""]):
+        with pytest.raises(SystemExit) as e:
+            classical.main(argv)
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "unknown matcher" in err and "--methods/--accuracy" in err
