@@ -21,6 +21,10 @@ import numpy as np
 from numba import njit, prange
 
 
+ROWS_PER_STEP = 1
+"""Rows per block of :func:`bp_level`'s wavefront (its default ``rows_per_step``)."""
+
+
 @njit(cache=True, fastmath=False)
 def _send_row(total, exclude, slopes, k, dest, out, lowest, row, b, y, y_dest, x0, x_dest, n):  # pragma: no cover
     """One outgoing message of the ``n`` pixels ``x0 .. x0+n-1`` of row ``(b, y)``, written shifted into ``dest``.
@@ -90,7 +94,7 @@ def _send_row(total, exclude, slopes, k, dest, out, lowest, row, b, y, y_dest, x
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def bp_level(cost, set0, set1, slopes, iterations):  # pragma: no cover - compiled
+def bp_level(cost, set0, set1, slopes, iterations, rows_per_step=ROWS_PER_STEP):  # pragma: no cover - compiled
     """Run ``iterations`` synchronous min-sum updates in place; returns which set holds the result (0 or 1).
 
     cost ``(B, H, D, W)`` row-major, C-contiguous; ``set0`` the incoming messages [from left, from right,
@@ -100,12 +104,17 @@ def bp_level(cost, set0, set1, slopes, iterations):  # pragma: no cover - compil
     the truncation ``T``.
 
     Iteration ``j`` reads set ``j % 2`` and writes set ``(j + 1) % 2``, row by row. Instead of sweeping the
-    grid once per iteration, the iterations run as a wavefront: at step ``t`` iteration ``j`` updates row
-    ``t - 2j``, so the rows the later iterations need are still in cache (the grid is streamed from memory
-    once per level, not once per iteration). The lag of two rows is what keeps it exactly synchronous:
-    iteration ``j`` at row ``y`` needs rows ``y - 1 .. y + 1`` of iteration ``j - 1`` (done at steps up to
-    ``t - 1``) and its writes to rows ``y - 1 .. y + 1`` of the other set never meet the row another
-    iteration reads or writes in the same step, so the ``iterations`` rows of one step run in parallel.
+    grid once per iteration, the iterations run as a wavefront over blocks of ``K = rows_per_step`` rows: at
+    step ``t`` iteration ``j`` updates block ``t - 2j``, so the rows the later iterations need are still in
+    cache (the grid is streamed from memory once per level, not once per iteration). A row's update reads
+    only its own incoming messages and writes its own row and the two next to it, so the lag of two blocks
+    keeps it exactly synchronous for any ``K >= 1``: iteration ``j`` at block ``b`` needs iteration ``j - 1``'s
+    writes into the block, made from blocks ``b - 1 .. b + 1`` (done at steps up to ``t - 1``), and what it
+    writes (the block and one row either side, in the other set) never meets a row that another iteration
+    reads or writes in the same step; so the ``iterations`` blocks of one step run in parallel, and every ``K``
+    gives the same bits. ``K = 1`` keeps the most in cache; a larger ``K`` has ``K`` times fewer steps, each
+    ending at a barrier where the threads wait for each other (the cost that grows when other work shares
+    the cores).
     """
     B, H, D, W = cost.shape
     # border slots that receive no message stay 0
@@ -117,15 +126,18 @@ def bp_level(cost, set0, set1, slopes, iterations):  # pragma: no cover - compil
             for x in range(W):
                 set1[2, b, 0, d, x] = 0
                 set1[3, b, H - 1, d, x] = 0
+    K = max(1, rows_per_step)
+    n_blocks = (H + K - 1) // K
     for b in range(B):
-        for t in range(H + 2 * (iterations - 1)):
+        for t in range(n_blocks + 2 * (iterations - 1)):
             for j in prange(iterations):
-                y = t - 2 * j
-                if 0 <= y < H:
-                    if j % 2 == 0:
-                        _update_row(cost, set0, set1, slopes, b, y)
-                    else:
-                        _update_row(cost, set1, set0, slopes, b, y)
+                blk = t - 2 * j
+                if 0 <= blk < n_blocks:
+                    for y in range(blk * K, min(blk * K + K, H)):
+                        if j % 2 == 0:
+                            _update_row(cost, set0, set1, slopes, b, y)
+                        else:
+                            _update_row(cost, set1, set0, slopes, b, y)
     return iterations % 2
 
 

@@ -131,3 +131,24 @@ def test_numba_equals_torch_on_odd_shapes(dtype):
         ties = (a.disparity != b.disparity)
         assert ties.float().mean() < 1e-3  # float32 ties aside
         torch.testing.assert_close(a.energy, b.energy, rtol=1e-6, atol=1e-3)
+
+
+@pytest.mark.parametrize("rows_per_step", [2, 3, 5, 64])
+def test_wavefront_blocks_of_rows_give_the_same_bits(rows_per_step):
+    """bp_level's wavefront over blocks of K rows (H = 37: not a multiple of 2, 3 or 5; K = 64 > H: one block)
+    gives exactly the messages of the one-row wavefront, which equals the torch reference (tests above)."""
+    import numpy as np
+
+    from stereonet.kernels.bp import bp_level
+
+    rng = np.random.default_rng(3)
+    cost = (rng.random((2, 37, 9, 29)) * 4).astype(np.float32)
+    slopes = np.concatenate([s := (rng.random((2, 4, 37, 29)) * 0.8).astype(np.float32), s * np.float32(3.0)], 1)
+    results = []
+    for k in (1, rows_per_step):
+        start = np.zeros((4,) + cost.shape, np.float32)
+        other = np.full_like(start, np.nan)  # any content: every slot it hands back is written first
+        parity = bp_level(cost, start, other, np.ascontiguousarray(slopes), 4, k)
+        results.append(start if parity == 0 else other)
+    assert np.isfinite(results[1]).all()
+    assert np.array_equal(results[0], results[1])
