@@ -20,7 +20,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-
 ROWS_PER_STEP = 1
 """Rows per block of :func:`bp_level`'s wavefront (its default ``rows_per_step``)."""
 
