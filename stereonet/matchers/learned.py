@@ -306,19 +306,15 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     """The maps of the matchers ``bases`` (:data:`stereonet.models.refine.BASES`) as a RefineNet reads them:
     each filled by the shared rule, stacked along the channels as ``(disparity, valid, confidence)``, each
     :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; the Siamese matchers run with the shipped weights."""
-    from stereonet.matchers.local import sgm
+    from stereonet.matchers import get_matcher
+    from stereonet.models.refine import BASES
     from stereonet.select.fill import fill_occlusions
 
     maps, valids, confidences = [], [], []
     for name in bases:
-        if name == "sgm":
-            out = sgm(left, right, max_disp, **sgm_options)
-        elif name == "siamese-census-sgm":
-            out = siamese_census_sgm_matcher(left, right, max_disp)
-        elif name == "siamese-sgm":
-            out = siamese_sgm_matcher(left, right, max_disp)
-        else:
-            raise StereoInputError(f"bases: unknown base matcher {name!r}")
+        if name not in BASES:
+            raise StereoInputError(f"bases: unknown base matcher {name!r}; expected one of {', '.join(BASES)}")
+        out = get_matcher(name, **(sgm_options if name == "sgm" else {}))(left, right, max_disp)
         confidence = out.confidence if out.confidence is not None else out.valid.to(left.dtype)
         maps.append(fill_occlusions(out.disparity, out.valid))
         valids.append(out.valid)
