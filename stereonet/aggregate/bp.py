@@ -89,10 +89,11 @@ def _run_level_numba(cost: np.ndarray, start: np.ndarray, other: np.ndarray, slo
     ``other`` a buffer of the same shape; ``slopes`` stay (B, 1, H, W) tensors. The cap ``s·T`` is computed
     here in the cost's dtype, as the reference does. Returns which buffer holds the result (0 = ``start``).
     """
-    from stereonet.kernels.bp import bp_level
+    from stereonet.kernels import bp as kernels
 
     slope_array = torch.cat(slopes + [s * truncation for s in slopes], dim=1).contiguous().numpy()  # Bx8xHxW
-    return int(bp_level(cost, start, other, slope_array, int(iterations)))
+    # the wavefront's block of rows is read here, at call time (any value gives the same bits)
+    return int(kernels.bp_level(cost, start, other, slope_array, int(iterations), int(kernels.ROWS_PER_STEP)))
 
 
 def _pool_sum(x: torch.Tensor) -> torch.Tensor:
