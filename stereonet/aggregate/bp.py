@@ -14,9 +14,12 @@ IJCV 2006:
 * coarse-to-fine: data costs summed over 2×2 blocks per level, messages of a coarse level initialise the
   four children at the next finer level, so few iterations per level propagate information far.
 
+* ``precision="int16"`` (the ``bp`` matcher's default): the finest levels in 16-bit fixed point, costs and
+  slopes rounded to a grid ``1/s`` (:func:`fixed_point_plan`), on which min-sum is exact integer arithmetic.
+
 Cost: O(iterations · 4 · B·D·H·W) time per level (the coarse levels add a third), about 11 volumes of
 ``B·D·H·W`` of memory at the finest level (cost, its row-major copy, 4 messages double-buffered and shared
-by all levels, beliefs).
+by all levels, beliefs); in fixed point the row-major copy and the messages take half (about 7 volumes).
 """
 
 from __future__ import annotations
@@ -81,19 +84,55 @@ def _run_level(cost: torch.Tensor, messages: list[torch.Tensor], slopes: list[to
     return [from_left, from_right, from_up, from_down]
 
 
-def _run_level_numba(cost: np.ndarray, start: np.ndarray, other: np.ndarray, slopes: list[torch.Tensor],
-                     truncation: float, iterations: int) -> int:
+def _slope_array(slopes: list[torch.Tensor], truncation: float) -> np.ndarray:
+    """The kernel's ``(B, 8, H, W)`` slopes: λ·w to the right, left, down, up neighbour, then each times ``T``
+    (the cap ``s·T``, computed in the cost's dtype as the reference does)."""
+    return torch.cat(slopes + [s * truncation for s in slopes], dim=1).contiguous().numpy()
+
+
+def _run_level_numba(cost: np.ndarray, start: np.ndarray, other: np.ndarray, slope_array: np.ndarray,
+                     iterations: int) -> int:
     """Same as :func:`_run_level` through the numba kernel, on *row-major* arrays, in place.
 
     cost ``(B, H, D, W)``; ``start`` the incoming messages ``(4, B, H, D, W)`` [from left, right, up, down],
-    ``other`` a buffer of the same shape; ``slopes`` stay (B, 1, H, W) tensors. The cap ``s·T`` is computed
-    here in the cost's dtype, as the reference does. Returns which buffer holds the result (0 = ``start``).
+    ``other`` a buffer of the same shape; ``slope_array`` from :func:`_slope_array` (all float32/float64, or all
+    int16 in fixed point). Returns which buffer holds the result (0 = ``start``).
     """
     from stereonet.kernels import bp as kernels
 
-    slope_array = torch.cat(slopes + [s * truncation for s in slopes], dim=1).contiguous().numpy()  # Bx8xHxW
     # the wavefront's block of rows is read here, at call time (any value gives the same bits)
     return int(kernels.bp_level(cost, start, other, slope_array, int(iterations), int(kernels.ROWS_PER_STEP)))
+
+
+FIXED_POINT_LIMIT = 32000
+"""Fixed point: every value a level's kernel computes stays below this (int16 holds 32767)."""
+FIXED_POINT_MIN_SCALE = 128
+"""Fixed point is used only when the finest level gets at least this many steps per unit of cost."""
+FIXED_POINT_MAX_SCALE = 1024
+
+
+def fixed_point_plan(costs: list[np.ndarray], slope_arrays: list[np.ndarray]) -> tuple[int, list[bool]]:
+    """The scale ``s`` (a power of two) and which pyramid levels run in int16 for ``precision="int16"``.
+
+    In min-sum BP with a truncated-linear DT every value a level computes is at most ``max C + 5 max(s·T)`` (the
+    summed beliefs: the cost plus four messages, each normalised to min 0 and capped at ``min + s·T``; the cap adds
+    one more ``s·T``). ``s`` is the largest power of two up to :data:`FIXED_POINT_MAX_SCALE` that keeps the finest
+    level's bound under :data:`FIXED_POINT_LIMIT`; a level runs in int16 when its own bound (coarse costs are sums
+    over 4^level pixels) fits too. Returns ``(0, [False] * levels)`` when ``s`` would be below
+    :data:`FIXED_POINT_MIN_SCALE` (a smoothness far above the cost's range).
+    """
+    bounds = [float(c.max()) + 5.0 * float(a[:, 4:].max()) for c, a in zip(costs, slope_arrays)]
+    scale = FIXED_POINT_MAX_SCALE
+    while scale >= FIXED_POINT_MIN_SCALE and scale * bounds[0] > FIXED_POINT_LIMIT:
+        scale //= 2
+    if scale < FIXED_POINT_MIN_SCALE:
+        return 0, [False] * len(costs)
+    return scale, [scale * b <= FIXED_POINT_LIMIT for b in bounds]
+
+
+def _to_fixed(x: np.ndarray, scale: int) -> np.ndarray:
+    """``round(x · scale)`` as int16 (the caller has checked the range)."""
+    return np.rint(x * np.float32(scale)).astype(np.int16)
 
 
 def _pool_sum(x: torch.Tensor) -> torch.Tensor:
@@ -114,7 +153,8 @@ def _slopes(smoothness: float, weights_right: torch.Tensor, weights_down: torch.
 
 def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float = 2.0, iterations: int = 5,
                        levels: int = 4, weights_right: torch.Tensor | None = None,
-                       weights_down: torch.Tensor | None = None, backend: str = "auto") -> BPResult:
+                       weights_down: torch.Tensor | None = None, backend: str = "auto",
+                       precision: str = "float") -> BPResult:
     """Coarse-to-fine min-sum loopy BP with truncated-linear smoothness (see the module docstring).
 
     Args:
@@ -125,12 +165,19 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
         levels: pyramid levels (>= 1; 1 = single scale); capped so the coarsest level is at least 2×2.
         weights_right, weights_down: optional :math:`(B, 1, H, W)` edge weights (see ``_global_mrf``).
         backend: ``"auto"`` (numba on CPU), ``"numba"`` or ``"torch"`` (the vectorised reference).
+        precision: ``"float"`` (the cost's dtype) or ``"int16"``: on the numba path with a float32 cost, the
+            finest levels run in 16-bit fixed point (:func:`fixed_point_plan`: costs and slopes rounded to a grid
+            ``1/s``, ``s`` up to 1024; on that grid min-sum is exact integer arithmetic, so the result is the float
+            kernel's on the rounded inputs), with half the message memory; coarser levels, a float64 cost and
+            the torch backend stay in floating point.
     Returns:
         :class:`BPResult`. Not differentiable (``argmin``); the inputs are detached.
     """
     cost = check_cost_volume(cost, "cost")
     check_finite(cost, "cost")  # (skipped for a volume the caller built from checked images: inputs_checked)
     smoothness, truncation = check_smoothness(smoothness, truncation)
+    if precision not in ("float", "int16"):
+        raise StereoInputError(f"precision: expected 'float' or 'int16', got {precision!r}")
     for name, v in (("iterations", iterations), ("levels", levels)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise StereoInputError(f"{name}: expected an integer >= 1, got {v!r}")
@@ -160,28 +207,41 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
         costs = [finest]
         for _ in range(levels - 1):
             costs.append(pool_sum2(costs[-1]))
-        # two flat buffers of 4 finest-level volumes, reused by every level: a level's incoming messages
-        # go to the buffer that does not hold the coarser level's result
-        buffers = [np.zeros(4 * finest.size, dtype=finest.dtype), np.empty(4 * finest.size, dtype=finest.dtype)]
+        del finest
+        slope_arrays = [_slope_array(_slopes(smoothness, r.to("cpu"), d.to("cpu")), truncation_eff) for r, d in weights]
+        scale, fixed = 0, [False] * levels
+        if precision == "int16" and costs[0].dtype == np.float32:
+            scale, fixed = fixed_point_plan(costs, slope_arrays)
+        for level in range(levels):
+            if fixed[level]:
+                costs[level] = _to_fixed(costs[level], scale)
+                slope_arrays[level] = _to_fixed(slope_arrays[level], scale)
+        # per dtype two flat message buffers sized for its largest level, reused by its levels: a level's incoming
+        # messages go to the buffer that does not hold the coarser level's result
+        buffers, held = {}, {}
+        for dt in {c.dtype for c in costs}:
+            size = 4 * max(c.size for c in costs if c.dtype == dt)
+            buffers[dt] = [np.zeros(size, dtype=dt), np.empty(size, dtype=dt)]
         result = None
-        held = 1
         for level in range(levels - 1, -1, -1):
             c = costs[level]
             shape = (4,) + c.shape
-            start = buffers[1 - held][:c.size * 4].reshape(shape)
-            other = buffers[held][:c.size * 4].reshape(shape)
+            h = held.get(c.dtype, 1)
+            start = buffers[c.dtype][1 - h][:c.size * 4].reshape(shape)
+            other = buffers[c.dtype][h][:c.size * 4].reshape(shape)
             if result is not None:  # each coarse pixel's messages initialise its 2x2 children
-                upsample2(result.reshape((-1,) + result.shape[2:]), start.reshape((-1,) + c.shape[1:]))
-            r, d = weights[level]
-            slopes = _slopes(smoothness, r.to("cpu"), d.to("cpu"))
-            parity = _run_level_numba(c, start, other, slopes, truncation_eff, iterations)
+                src = result if result.dtype == c.dtype else _to_fixed(result, scale)
+                upsample2(src.reshape((-1,) + src.shape[2:]), start.reshape((-1,) + c.shape[1:]))
+            parity = _run_level_numba(c, start, other, slope_arrays[level], iterations)
             result = start if parity == 0 else other
-            held = 1 - held if parity == 0 else held
+            held[c.dtype] = 1 - h if parity == 0 else h
         # outputs allocated by numpy (large allocations get transparent huge pages: fewer page faults)
-        beliefs_rows = np.empty_like(finest)
+        out_dtype = np.dtype(np.float32) if fixed[0] else costs[0].dtype
+        beliefs_rows = np.empty((B, H, D, W), dtype=out_dtype)
         labels_rows = np.empty((B, H, W), dtype=np.int64)
-        beliefs_argmin(finest, result, beliefs_rows, labels_rows)
-        del buffers, result, start, other, costs, finest
+        # fixed point: beliefs back in cost units (1/s is a power of two: exact)
+        beliefs_argmin(costs[0], result, beliefs_rows, labels_rows, out_dtype.type(1.0 / scale if fixed[0] else 1.0))
+        del buffers, result, start, other, costs
         beliefs = torch.from_numpy(beliefs_rows).permute(0, 2, 1, 3).to(cost.device)  # BxDxHxW view
         labels = torch.from_numpy(labels_rows).unsqueeze(1).to(cost.device)
     else:

@@ -222,17 +222,20 @@ def pool_sum2(fine):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def beliefs_argmin(cost, messages, beliefs, labels):  # pragma: no cover - compiled
-    """``beliefs = cost + m0 + m1 + m2 + m3`` (left to right) and ``labels`` its first argmin over d, row-major.
+def beliefs_argmin(cost, messages, beliefs, labels, scale):  # pragma: no cover - compiled
+    """``beliefs = (cost + m0 + m1 + m2 + m3) * scale`` (summed left to right) and ``labels`` its first argmin
+    over d, row-major.
 
-    cost and (output) beliefs ``(B, H, D, W)``, messages ``(4, B, H, D, W)``, (output) labels ``(B, H, W)``
-    int64. The running minimum ping-pongs between two rows (no select-write in place: that stays scalar).
+    cost ``(B, H, D, W)`` and messages ``(4, B, H, D, W)`` of one dtype (float, or int16 in fixed point), (output)
+    beliefs ``(B, H, D, W)`` float, ``scale`` of the beliefs' dtype (1 for float costs: the same bits; ``1/s`` in
+    fixed point, a power of two, so the int16 sums come back exactly), (output) labels ``(B, H, W)`` int64. The
+    running minimum ping-pongs between two rows (no select-write in place: that stays scalar).
     """
     B, H, D, W = cost.shape
     for row in prange(B * H):
         b = row // H
         y = row % H
-        best = np.empty((2, W), dtype=cost.dtype)
+        best = np.empty((2, W), dtype=beliefs.dtype)
         lab = np.zeros((2, W), dtype=np.int64)
         for d in range(D):
             c = cost[b, y, d]
@@ -242,7 +245,7 @@ def beliefs_argmin(cost, messages, beliefs, labels):  # pragma: no cover - compi
             a3 = messages[3, b, y, d]
             out = beliefs[b, y, d]
             for x in range(W):
-                out[x] = c[x] + a0[x] + a1[x] + a2[x] + a3[x]
+                out[x] = (c[x] + a0[x] + a1[x] + a2[x] + a3[x]) * scale
             if d == 0:
                 b0 = best[0]
                 for x in range(W):

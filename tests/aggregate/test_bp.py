@@ -152,3 +152,59 @@ def test_wavefront_blocks_of_rows_give_the_same_bits(rows_per_step):
         results.append(start if parity == 0 else other)
     assert np.isfinite(results[1]).all()
     assert np.array_equal(results[0], results[1])
+
+
+def _on_grid(x: torch.Tensor, scale: int = 1024) -> torch.Tensor:
+    return (x * scale).round() / scale
+
+
+@pytest.mark.parametrize("levels, with_weights", [(1, True), (3, False)])
+def test_int16_fixed_point_is_the_float_kernel_on_the_rounded_inputs(levels, with_weights):
+    """precision="int16": costs and slopes on the 1/1024 grid make min-sum exact integer arithmetic, so the
+    fixed-point levels (and the float coarse levels of a 3-level pyramid, whose messages are rounded onto the grid
+    when they initialise the finer level) give the float kernel's beliefs and labels bit for bit."""
+    g = torch.Generator().manual_seed(4)
+    cost = _on_grid(torch.rand(2, 11, 37, 45, generator=g) * 3)
+    wr = wd = None
+    if with_weights:
+        wr, wd = (_on_grid(torch.rand(2, 1, 37, 45, generator=g)) for _ in range(2))  # bound 3 + 5 * 3 < 32000 / 1024
+    kw = dict(iterations=3, levels=levels, weights_right=wr, weights_down=wd)
+    smoothness = 1.0 if with_weights else 0.5  # λ·w on the grid too
+    a = belief_propagation(cost, smoothness, 3.0, precision="float", **kw)
+    b = belief_propagation(cost, smoothness, 3.0, precision="int16", **kw)
+    assert torch.equal(a.disparity, b.disparity)
+    assert torch.equal(a.beliefs, b.beliefs)
+
+
+def test_int16_plan_keeps_float_where_int16_would_not_hold_the_values():
+    """The finest level's bound (max cost + 5 max s·T) sets the scale; coarse levels whose summed costs exceed
+    int16 at that scale stay float; a smoothness far above the costs turns fixed point off, and a float64 cost
+    or the torch backend are never quantised."""
+    import numpy as np
+
+    from stereonet.aggregate.bp import FIXED_POINT_LIMIT, fixed_point_plan
+
+    costs = [np.full((1, 4, 3, 4), 2.0 * 4 ** level, np.float32) for level in range(4)]
+    slopes = [np.full((1, 8, 4, 4), 3.6, np.float32) for _ in range(4)]
+    scale, fixed = fixed_point_plan(costs, slopes)
+    assert scale == 1024 and fixed == [True, True, False, False]
+    assert all(scale * (c.max() + 5 * 3.6) <= FIXED_POINT_LIMIT for c, f in zip(costs, fixed) if f)
+    assert fixed_point_plan(costs, [s * 100 for s in slopes]) == (0, [False] * 4)
+    g = torch.Generator().manual_seed(5)
+    cost = torch.rand(1, 7, 20, 24, generator=g, dtype=torch.float64)
+    a = belief_propagation(cost, 0.4, 2.0, levels=2, precision="float")
+    b = belief_propagation(cost, 0.4, 2.0, levels=2, precision="int16")
+    assert torch.equal(a.beliefs, b.beliefs)
+    with pytest.raises(StereoInputError, match="precision"):
+        belief_propagation(cost, 0.4, precision="half")
+
+
+def test_bp_matcher_int16_default_stays_close_to_float():
+    """The registered bp runs in fixed point by default: on a textured pair its labels agree with the float run
+    almost everywhere (rounding the costs to 1/1024 flips only near-ties)."""
+    g = torch.Generator().manual_seed(6)
+    big = torch.rand(1, 3, 48, 80, generator=g)
+    left, right = big[..., 4:].contiguous(), big[..., :76].contiguous()
+    a = match("bp", left, right, 12, precision="float")
+    b = match("bp", left, right, 12)
+    assert float(((a.disparity - b.disparity).abs() > 0.5).float().mean()) < 0.01
