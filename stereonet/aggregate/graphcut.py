@@ -11,8 +11,8 @@ edges. The minimum cut is the optimal move; a move is kept only when it lowers t
 never increases (a guard against float rounding; in exact arithmetic it cannot increase anyway).
 
 Complexity: ``cycles · D`` max-flow problems on a grid graph of ``H·W`` nodes and ``2·H·W`` edges, each
-near-linear in practice for BK's algorithm on such grids (worst case O(E·V²·|C|)); the graph is built with
-vectorised numpy per move. Pass ``init`` (e.g. the WTA disparity) to start close to the optimum.
+near-linear in practice for BK's algorithm on such grids (worst case O(E·V²·|C|)); each move's capacities come
+from one compiled pass (:func:`stereonet.kernels.graphcut.expansion_terms`). Pass ``init`` (e.g. the WTA disparity) to start close to the optimum.
 """
 
 from __future__ import annotations
@@ -55,27 +55,17 @@ def _energy(cost: np.ndarray, labels: np.ndarray, s_right: np.ndarray, s_down: n
 def _expansion_move(cost: np.ndarray, labels: np.ndarray, alpha: int, s_right: np.ndarray,
                     s_down: np.ndarray, truncation: float) -> np.ndarray:
     """Optimal α-expansion of ``labels`` (H, W) by one min cut; returns the new labels."""
+    from stereonet.kernels.graphcut import expansion_terms
+
     h, w = labels.shape
-    keep_cost = np.take_along_axis(cost, labels[None], axis=0)[0]  # HxW, x = 0
-    alpha_cost = cost[alpha].astype(np.float64, copy=True)  # HxW, x = 1
-    keep_cost = keep_cost.astype(np.float64, copy=True)
+    cap_right, cap_down, source, sink = (np.empty((h, w)) for _ in range(4))
+    expansion_terms(cost, labels, int(alpha), s_right, s_down, float(truncation), cap_right, cap_down, source, sink)
     graph = maxflow.GraphFloat(h * w, 2 * h * w)
     nodes = graph.add_grid_nodes((h, w))
-    to_alpha = np.minimum(np.abs(labels - alpha), truncation)  # V(f_p, α)
-    for slope, structure, lead, trail in ((s_right, _RIGHT, np.s_[:, :-1], np.s_[:, 1:]),
-                                          (s_down, _DOWN, np.s_[:-1, :], np.s_[1:, :])):
-        s = slope[lead]
-        e00 = s * np.minimum(np.abs(labels[lead] - labels[trail]), truncation)  # A = V(f_p, f_q)
-        e01 = s * to_alpha[lead]  # B = V(f_p, α)
-        e10 = s * to_alpha[trail]  # C = V(α, f_q)
-        alpha_cost[lead] += e10 - e00
-        alpha_cost[trail] -= e10
-        capacity = np.zeros((h, w))
-        capacity[lead] = np.maximum(e01 + e10 - e00, 0.0)
-        graph.add_grid_edges(nodes, weights=capacity, structure=structure, symmetric=False)
-    low = np.minimum(keep_cost, alpha_cost)
+    graph.add_grid_edges(nodes, weights=cap_right, structure=_RIGHT, symmetric=False)
+    graph.add_grid_edges(nodes, weights=cap_down, structure=_DOWN, symmetric=False)
     # a node in the source set (x = 0) pays its sink capacity, in the sink set (x = 1) its source capacity
-    graph.add_grid_tedges(nodes, alpha_cost - low, keep_cost - low)
+    graph.add_grid_tedges(nodes, source, sink)
     graph.maxflow()
     take_alpha = graph.get_grid_segments(nodes)
     return np.where(take_alpha, alpha, labels)

@@ -97,3 +97,45 @@ def test_each_expansion_move_is_optimal():
         best = min(_energy(cost, np.where(np.array(x).reshape(2, 3) == 1, alpha, labels), s_right, s_down, 2.0)
                    for x in itertools.product((0, 1), repeat=6))
         assert _energy(cost, move, s_right, s_down, 2.0) <= best + 1e-9
+
+
+def _expansion_terms_numpy(cost, labels, alpha, s_right, s_down, truncation):
+    """The vectorised numpy construction the kernel replaced (Kolmogorov-Zabih terms of one expansion move)."""
+    import numpy as np
+
+    h, w = labels.shape
+    keep_cost = np.take_along_axis(cost, labels[None], axis=0)[0]
+    alpha_cost = cost[alpha].astype(np.float64, copy=True)
+    to_alpha = np.minimum(np.abs(labels - alpha), truncation)
+    caps = []
+    for slope, lead, trail in ((s_right, np.s_[:, :-1], np.s_[:, 1:]), (s_down, np.s_[:-1, :], np.s_[1:, :])):
+        s = slope[lead]
+        e00 = s * np.minimum(np.abs(labels[lead] - labels[trail]), truncation)
+        e01 = s * to_alpha[lead]
+        e10 = s * to_alpha[trail]
+        alpha_cost[lead] += e10 - e00
+        alpha_cost[trail] -= e10
+        capacity = np.zeros((h, w))
+        capacity[lead] = np.maximum(e01 + e10 - e00, 0.0)
+        caps.append(capacity)
+    low = np.minimum(keep_cost, alpha_cost)
+    return caps[0], caps[1], alpha_cost - low, keep_cost - low
+
+
+@pytest.mark.parametrize("h, w", [(1, 1), (1, 7), (6, 1), (13, 17)])
+def test_expansion_kernel_builds_the_same_graph_as_the_numpy_construction(h, w):
+    """Every capacity of the compiled construction equals the vectorised numpy one to the bit (same float64
+    operations in the same order), for every alpha, on random costs, labels and contrast slopes."""
+    import numpy as np
+
+    from stereonet.kernels.graphcut import expansion_terms
+
+    rng = np.random.default_rng(h * 100 + w)
+    cost = rng.random((9, h, w)) * 3
+    labels = rng.integers(0, 9, (h, w)).astype(np.int64)
+    s_right, s_down = rng.random((h, w)) * 0.9, rng.random((h, w)) * 0.9
+    for alpha in range(9):
+        out = [np.full((h, w), np.nan) for _ in range(4)]
+        expansion_terms(cost, labels, alpha, s_right, s_down, 2.0, *out)
+        for got, want in zip(out, _expansion_terms_numpy(cost, labels, alpha, s_right, s_down, 2.0)):
+            assert np.array_equal(got, want)
