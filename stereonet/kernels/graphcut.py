@@ -13,8 +13,18 @@ from __future__ import annotations
 from numba import njit
 
 
+@njit(cache=True, fastmath=False, inline="always")
+def _edge(s, lp, lq, alpha, T, to_p):  # pragma: no cover - compiled
+    """One edge p -> q of slope ``s``: (``C - A``, the edge capacity ``max(B + C - A, 0)``) with ``A = V(f_p, f_q)``,
+    ``B = V(f_p, α)`` (``s * to_p``), ``C = V(α, f_q)``."""
+    e00 = s * min(float(abs(lp - lq)), T)
+    e01 = s * to_p
+    e10 = s * min(float(abs(lq - alpha)), T)
+    return e10 - e00, max(e01 + e10 - e00, 0.0)
+
+
 @njit(cache=True, fastmath=False)
-def expansion_terms(cost, labels, alpha, s_right, s_down, truncation, cap_right, cap_down, source, sink):
+def expansion_terms(cost, labels, alpha, s_right, s_down, truncation, cap_right, cap_down, source, sink):  # pragma: no cover
     """The α-expansion graph of ``labels`` (H, W) int64 on ``cost`` (D, H, W) float64 with slopes λ·w
     ``s_right``/``s_down`` (H, W) float64, written into the (H, W) float64 outputs: ``cap_right[y, x]`` the capacity
     of the edge (y, x) -> (y, x + 1) (0 in the last column), ``cap_down`` the same downwards, ``source`` and ``sink``
@@ -28,26 +38,16 @@ def expansion_terms(cost, labels, alpha, s_right, s_down, truncation, cap_right,
             a = cost[alpha, y, x]
             to_p = min(float(abs(lp - alpha)), T)
             if x + 1 < W:
-                lq = labels[y, x + 1]
-                s = s_right[y, x]
-                e00 = s * min(float(abs(lp - lq)), T)
-                e01 = s * to_p
-                e10 = s * min(float(abs(lq - alpha)), T)
-                a += e10 - e00
-                cap_right[y, x] = max(e01 + e10 - e00, 0.0)
+                delta, cap_right[y, x] = _edge(s_right[y, x], lp, labels[y, x + 1], alpha, T, to_p)
+                a += delta
             else:
                 cap_right[y, x] = 0.0
             if x > 0:
                 s = s_right[y, x - 1]
                 a -= s * to_p
             if y + 1 < H:
-                lq = labels[y + 1, x]
-                s = s_down[y, x]
-                e00 = s * min(float(abs(lp - lq)), T)
-                e01 = s * to_p
-                e10 = s * min(float(abs(lq - alpha)), T)
-                a += e10 - e00
-                cap_down[y, x] = max(e01 + e10 - e00, 0.0)
+                delta, cap_down[y, x] = _edge(s_down[y, x], lp, labels[y + 1, x], alpha, T, to_p)
+                a += delta
             else:
                 cap_down[y, x] = 0.0
             if y > 0:
