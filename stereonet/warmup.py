@@ -45,6 +45,8 @@ def warm_up(verbose: bool = True) -> list[tuple[str, float]]:
         feats = torch.nn.functional.normalize(torch.rand(2, 8, 40, 72, generator=g), dim=1)
         vol = siamese_cost_volume(feats[:1], feats[1:], 16, backend="numba")
         matchers.match("sgm", left, right, 16, extra_cost=(0.25, 18.0, vol))
+        # the float32 aggregation: an unrounded mix (mix_step=None), or a mix outside the 16-bit path's range
+        matchers.match("sgm", left, right, 16, extra_cost=(0.25, 18.0, vol), mix_step=None)
 
     step("learned cost", learned_cost)
 
