@@ -111,7 +111,7 @@ FIXED_POINT_MIN_SCALE = 128
 FIXED_POINT_MAX_SCALE = 1024
 
 
-def fixed_point_plan(costs: list[np.ndarray], slope_arrays: list[np.ndarray]) -> tuple[int, list[bool]]:
+def fixed_point_plan(maxima: list[float], slope_arrays: list[np.ndarray]) -> tuple[int, list[bool]]:
     """The scale ``s`` (a power of two) and which pyramid levels run in int16 for ``precision="int16"``.
 
     In min-sum BP with a truncated-linear DT every value a level computes is at most ``max C + 5 max(s·T)`` (the
@@ -119,15 +119,26 @@ def fixed_point_plan(costs: list[np.ndarray], slope_arrays: list[np.ndarray]) ->
     one more ``s·T``). ``s`` is the largest power of two up to :data:`FIXED_POINT_MAX_SCALE` that keeps the finest
     level's bound under :data:`FIXED_POINT_LIMIT`; a level runs in int16 when its own bound (coarse costs are sums
     over 4^level pixels) fits too. Returns ``(0, [False] * levels)`` when ``s`` would be below
-    :data:`FIXED_POINT_MIN_SCALE` (a smoothness far above the cost's range).
+    :data:`FIXED_POINT_MIN_SCALE` (a smoothness far above the cost's range). ``maxima``: each level's largest
+    cost; ``slope_arrays``: each level's :func:`_slope_array`.
     """
-    bounds = [float(c.max()) + 5.0 * float(a[:, 4:].max()) for c, a in zip(costs, slope_arrays)]
+    bounds = [float(m) + 5.0 * float(a[:, 4:].max()) for m, a in zip(maxima, slope_arrays)]
     scale = FIXED_POINT_MAX_SCALE
     while scale >= FIXED_POINT_MIN_SCALE and scale * bounds[0] > FIXED_POINT_LIMIT:
         scale //= 2
     if scale < FIXED_POINT_MIN_SCALE:
-        return 0, [False] * len(costs)
+        return 0, [False] * len(maxima)
     return scale, [scale * b <= FIXED_POINT_LIMIT for b in bounds]
+
+
+def _largest(x: torch.Tensor) -> float:
+    """``x.max()`` read in memory order: a reduction over a permuted view (the numba cost volume is a
+    ``(B, D, H, W)`` view of ``(B, H, W, D)`` memory) is several times slower than over the same values in order."""
+    for order in ((0, 1, 2, 3), (0, 2, 3, 1), (0, 2, 1, 3)):
+        view = x.permute(*order)
+        if view.is_contiguous():
+            return float(view.max())
+    return float(x.max())
 
 
 def _to_fixed(x: np.ndarray, scale: int) -> np.ndarray:
@@ -198,23 +209,30 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                         F.avg_pool2d(F.pad(d, (0, d.shape[-1] % 2, 0, d.shape[-2] % 2), mode="replicate"), 2)))
     truncation_eff = min(truncation, float(cost.shape[1]))
     if numba_path:
-        from stereonet.kernels.bp import beliefs_argmin, pool_sum2, upsample2
+        from stereonet.kernels.bp import beliefs_argmin, pool_sum2, round_rows, upsample2
 
         # the kernels work row-major (B, H, D, W): each grid row is D contiguous runs of W pixels
         B, D, H, W = cost.shape
-        finest = np.empty((B, H, D, W), dtype=torch.empty(0, dtype=cost.dtype).numpy().dtype)
-        torch.from_numpy(finest).copy_(cost.permute(0, 2, 1, 3))
-        costs = [finest]
-        for _ in range(levels - 1):
-            costs.append(pool_sum2(costs[-1]))
-        del finest
+        rows = cost.permute(0, 2, 1, 3).numpy()  # a strided (B, H, D, W) view, no copy
         slope_arrays = [_slope_array(_slopes(smoothness, r.to("cpu"), d.to("cpu")), truncation_eff) for r, d in weights]
+        costs: list[np.ndarray] = [rows]
+        for _ in range(levels - 1):  # the same sums whether the finest level is read strided or copied
+            costs.append(pool_sum2(costs[-1]))
         scale, fixed = 0, [False] * levels
-        if precision == "int16" and costs[0].dtype == np.float32:
-            scale, fixed = fixed_point_plan(costs, slope_arrays)
+        if precision == "int16" and rows.dtype == np.float32:
+            maxima = [_largest(cost)] + [float(c.max()) for c in costs[1:]]
+            scale, fixed = fixed_point_plan(maxima, slope_arrays)
+        if fixed[0]:  # rounded straight from the strided view: no float row-major copy of the finest level
+            costs[0] = np.empty((B, H, D, W), dtype=np.int16)
+            round_rows(rows, np.float32(scale), costs[0])
+        else:
+            costs[0] = np.empty((B, H, D, W), dtype=rows.dtype)
+            torch.from_numpy(costs[0]).copy_(cost.permute(0, 2, 1, 3))
+        del rows
         for level in range(levels):
             if fixed[level]:
-                costs[level] = _to_fixed(costs[level], scale)
+                if level > 0:
+                    costs[level] = _to_fixed(costs[level], scale)
                 slope_arrays[level] = _to_fixed(slope_arrays[level], scale)
         # per dtype two flat message buffers sized for its largest level, reused by its levels: a level's incoming
         # messages go to the buffer that does not hold the coarser level's result

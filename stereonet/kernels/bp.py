@@ -222,6 +222,21 @@ def pool_sum2(fine):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True, fastmath=False)
+def round_rows(cost, scale, out):  # pragma: no cover - compiled
+    """``out = rint(cost * scale)`` as int16 (round half to even, as ``np.rint``): the finest level in fixed point,
+    read from any strided ``(B, H, D, W)`` float32 view (a permuted cost volume) in one pass, row by row."""
+    B, H, D, W = out.shape
+    for row in prange(B * H):
+        b = row // H
+        y = row % H
+        for d in range(D):
+            src = cost[b, y, d]
+            dst = out[b, y, d]
+            for x in range(W):
+                dst[x] = np.int16(np.rint(src[x] * scale))
+
+
+@njit(parallel=True, cache=True, fastmath=False)
 def beliefs_argmin(cost, messages, beliefs, labels, scale):  # pragma: no cover - compiled
     """``beliefs = (cost + m0 + m1 + m2 + m3) * scale`` (summed left to right) and ``labels`` its first argmin
     over d, row-major.

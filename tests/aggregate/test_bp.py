@@ -184,12 +184,12 @@ def test_int16_plan_keeps_float_where_int16_would_not_hold_the_values():
 
     from stereonet.aggregate.bp import FIXED_POINT_LIMIT, fixed_point_plan
 
-    costs = [np.full((1, 4, 3, 4), 2.0 * 4 ** level, np.float32) for level in range(4)]
+    maxima = [2.0 * 4 ** level for level in range(4)]
     slopes = [np.full((1, 8, 4, 4), 3.6, np.float32) for _ in range(4)]
-    scale, fixed = fixed_point_plan(costs, slopes)
+    scale, fixed = fixed_point_plan(maxima, slopes)
     assert scale == 1024 and fixed == [True, True, False, False]
-    assert all(scale * (c.max() + 5 * 3.6) <= FIXED_POINT_LIMIT for c, f in zip(costs, fixed) if f)
-    assert fixed_point_plan(costs, [s * 100 for s in slopes]) == (0, [False] * 4)
+    assert all(scale * (m + 5 * 3.6) <= FIXED_POINT_LIMIT for m, f in zip(maxima, fixed) if f)
+    assert fixed_point_plan(maxima, [s * 100 for s in slopes]) == (0, [False] * 4)
     g = torch.Generator().manual_seed(5)
     cost = torch.rand(1, 7, 20, 24, generator=g, dtype=torch.float64)
     a = belief_propagation(cost, 0.4, 2.0, levels=2, precision="float")
