@@ -17,9 +17,10 @@ IJCV 2006:
 * ``precision="int16"`` (the ``bp`` matcher's default): the finest levels in 16-bit fixed point, costs and
   slopes rounded to a grid ``1/s`` (:func:`fixed_point_plan`), on which min-sum is exact integer arithmetic.
 
-Cost: O(iterations · 4 · B·D·H·W) time per level (the coarse levels add a third), about 11 volumes of
-``B·D·H·W`` of memory at the finest level (cost, its row-major copy, 4 messages double-buffered and shared
-by all levels, beliefs); in fixed point the row-major copy and the messages take half (about 7 volumes).
+Cost: O(iterations · 4 · B·D·H·W) time per level (the coarse levels add a third), about 7 volumes of
+``B·D·H·W`` of memory at the finest level (cost, its row-major copy, 4 messages updated in place with the
+iterations in between in small rings of rows, beliefs); in fixed point the row-major copy and the messages
+take half (about 5 volumes).
 """
 
 from __future__ import annotations
@@ -90,18 +91,21 @@ def _slope_array(slopes: list[torch.Tensor], truncation: float) -> np.ndarray:
     return torch.cat(slopes + [s * truncation for s in slopes], dim=1).contiguous().numpy()
 
 
-def _run_level_numba(cost: np.ndarray, start: np.ndarray, other: np.ndarray, slope_array: np.ndarray,
-                     iterations: int) -> int:
-    """Same as :func:`_run_level` through the numba kernel, on *row-major* arrays, in place.
+def _run_level_numba(cost: np.ndarray, start: np.ndarray, slope_array: np.ndarray, iterations: int) -> np.ndarray:
+    """Same as :func:`_run_level` through the numba kernel, on *row-major* arrays; returns the final messages.
 
-    cost ``(B, H, D, W)``; ``start`` the incoming messages ``(4, B, H, D, W)`` [from left, right, up, down],
-    ``other`` a buffer of the same shape; ``slope_array`` from :func:`_slope_array` (all float32/float64, or all
-    int16 in fixed point). Returns which buffer holds the result (0 = ``start``).
+    cost ``(B, H, D, W)``; ``start`` the incoming messages ``(B, 4, H, D, W)`` [from left, right, up, down], updated
+    in place when ``iterations >= 2``; ``slope_array`` from :func:`_slope_array` (all float32/float64, or all int16
+    in fixed point).
     """
     from stereonet.kernels import bp as kernels
 
     # the wavefront's block of rows is read here, at call time (any value gives the same bits)
-    return int(kernels.bp_level(cost, start, other, slope_array, int(iterations), int(kernels.ROWS_PER_STEP)))
+    k = int(kernels.ROWS_PER_STEP)
+    final = start if iterations >= 2 else np.empty_like(start)
+    rings = np.empty(kernels.ring_shape(iterations, k, cost.shape[2], cost.shape[3]), dtype=cost.dtype)
+    kernels.bp_level(cost, start, final, rings, slope_array, int(iterations), k)
+    return final
 
 
 FIXED_POINT_LIMIT = 32000
@@ -234,32 +238,29 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                 if level > 0:
                     costs[level] = _to_fixed(costs[level], scale)
                 slope_arrays[level] = _to_fixed(slope_arrays[level], scale)
-        # per dtype two flat message buffers sized for its largest level, reused by its levels: a level's incoming
-        # messages go to the buffer that does not hold the coarser level's result
-        buffers, held = {}, {}
-        for dt in {c.dtype for c in costs}:
-            size = 4 * max(c.size for c in costs if c.dtype == dt)
-            buffers[dt] = [np.zeros(size, dtype=dt), np.empty(size, dtype=dt)]
+        # each level's messages (B, 4, h, D, w) are updated in place; the coarser level's result initialises them
+        # (each coarse pixel's messages copied to its 2x2 children) and is then dropped
         result = None
         for level in range(levels - 1, -1, -1):
             c = costs[level]
-            shape = (4,) + c.shape
-            h = held.get(c.dtype, 1)
-            start = buffers[c.dtype][1 - h][:c.size * 4].reshape(shape)
-            other = buffers[c.dtype][h][:c.size * 4].reshape(shape)
-            if result is not None:  # each coarse pixel's messages initialise its 2x2 children
+            shape = (c.shape[0], 4) + c.shape[1:]
+            if result is None:
+                start = np.zeros(shape, dtype=c.dtype)
+            else:
+                start = np.empty(shape, dtype=c.dtype)
                 src = result if result.dtype == c.dtype else _to_fixed(result, scale)
                 upsample2(src.reshape((-1,) + src.shape[2:]), start.reshape((-1,) + c.shape[1:]))
-            parity = _run_level_numba(c, start, other, slope_arrays[level], iterations)
-            result = start if parity == 0 else other
-            held[c.dtype] = 1 - h if parity == 0 else h
+                del src
+                result = None
+            result = _run_level_numba(c, start, slope_arrays[level], iterations)
+            del start
         # outputs allocated by numpy (large allocations get transparent huge pages: fewer page faults)
         out_dtype = np.dtype(np.float32) if fixed[0] else costs[0].dtype
         beliefs_rows = np.empty((B, H, D, W), dtype=out_dtype)
         labels_rows = np.empty((B, H, W), dtype=np.int64)
         # fixed point: beliefs back in cost units (1/s is a power of two: exact)
         beliefs_argmin(costs[0], result, beliefs_rows, labels_rows, out_dtype.type(1.0 / scale if fixed[0] else 1.0))
-        del buffers, result, start, other, costs
+        del result, costs
         beliefs = torch.from_numpy(beliefs_rows).permute(0, 2, 1, 3).to(cost.device)  # BxDxHxW view
         labels = torch.from_numpy(labels_rows).unsqueeze(1).to(cost.device)
     else:

@@ -45,25 +45,26 @@ def _narrow_overload(value, like):
 
 
 @njit(cache=True, fastmath=False)
-def _send_row(total, exclude, slopes, k, dest, out, lowest, row, b, y, y_dest, x0, x_dest, n):  # pragma: no cover
+def _send_row(total, exclude, y_src, slopes, k, dest, out, lowest, row, b, y, y_dest, x0, x_dest, n):  # pragma: no cover
     """One outgoing message of the ``n`` pixels ``x0 .. x0+n-1`` of row ``(b, y)``, written shifted into ``dest``.
 
-    ``dest[b, y_dest, :, x_dest + i] = DT(total[:, x0 + i] - exclude[b, y, :, x0 + i])`` normalised to min 0,
+    ``dest[y_dest, :, x_dest + i] = DT(total[:, x0 + i] - exclude[y_src, :, x0 + i])`` normalised to min 0,
     DT the truncated-linear distance transform: forward pass ``f[d] = min(h[d], f[d-1] + s)``, backward
     pass ``g[d] = min(f[d], g[d+1] + s, lowest + s·T)`` (the cap folded in: ``min(g[d+1], cap) + s`` only
     differs from ``g[d+1] + s`` where both are above the cap), ``lowest = min_d h = min_d f`` (s >= 0),
     which is also the minimum of the message: the normalisation subtracts it.
 
-    total, out: ``(D, W)`` row scratch (``out`` gets the forward pass); exclude, dest: ``(B, H, D, W)``;
-    slopes ``(B, 8, H, W)`` with s at channel ``k`` and s·T at ``k + 4``; lowest, row: ``(2, W)`` ping-pong
-    scratch. Every inner loop runs over ``i`` on 1-d C-contiguous slices indexed by ``i`` alone, and no loop
-    reads and select-writes the same buffer (LLVM turns that into a masked store and stays scalar).
+    total, out: ``(D, W)`` row scratch (``out`` gets the forward pass); exclude, dest: ``(rows, D, W)`` (one
+    message slot of a set: a whole grid or a ring of rows, indexed by the caller's row numbers ``y_src`` and
+    ``y_dest``); slopes ``(B, 8, H, W)`` with s at channel ``k`` and s·T at ``k + 4``; lowest, row: ``(2, W)``
+    ping-pong scratch. Every inner loop runs over ``i`` on 1-d C-contiguous slices indexed by ``i`` alone, and
+    no loop reads and select-writes the same buffer (LLVM turns that into a masked store and stays scalar).
     """
     D = out.shape[0]
     s = slopes[b, k, y, x0:x0 + n]
     sT = slopes[b, k + 4, y, x0:x0 + n]
     t = total[0, x0:x0 + n]
-    e = exclude[b, y, 0, x0:x0 + n]
+    e = exclude[y_src, 0, x0:x0 + n]
     cur = out[0, :n]
     lo = lowest[0, :n]
     for i in range(n):
@@ -72,7 +73,7 @@ def _send_row(total, exclude, slopes, k, dest, out, lowest, row, b, y, y_dest, x
         lo[i] = v
     for d in range(1, D):
         t = total[d, x0:x0 + n]
-        e = exclude[b, y, d, x0:x0 + n]
+        e = exclude[y_src, d, x0:x0 + n]
         prev = out[d - 1, :n]
         cur = out[d, :n]
         lo_old = lowest[(d - 1) % 2, :n]
@@ -90,7 +91,7 @@ def _send_row(total, exclude, slopes, k, dest, out, lowest, row, b, y, y_dest, x
         cp[i] = _narrow(lo[i] + sT[i], out)
     f = out[D - 1, :n]
     g = row[(D - 1) % 2, :n]
-    dst = dest[b, y_dest, D - 1, x_dest:x_dest + n]
+    dst = dest[y_dest, D - 1, x_dest:x_dest + n]
     for i in range(n):
         c = f[i]
         q = cp[i]
@@ -101,7 +102,7 @@ def _send_row(total, exclude, slopes, k, dest, out, lowest, row, b, y, y_dest, x
         f = out[d, :n]
         nxt = row[(d + 1) % 2, :n]
         g = row[d % 2, :n]
-        dst = dest[b, y_dest, d, x_dest:x_dest + n]
+        dst = dest[y_dest, d, x_dest:x_dest + n]
         for i in range(n):
             c = f[i]
             v = _narrow(nxt[i] + s[i], out)
@@ -112,83 +113,101 @@ def _send_row(total, exclude, slopes, k, dest, out, lowest, row, b, y, y_dest, x
             dst[i] = _narrow(c - lo[i], out)
 
 
+def ring_shape(iterations: int, rows_per_step: int, depth: int, width: int) -> tuple[int, int, int, int, int]:
+    """Shape of :func:`bp_level`'s ``rings`` scratch: one ring of ``4 K`` rows of the four message slots per
+    intermediate iteration (at least one ring, so the shape is never empty)."""
+    return (max(iterations - 1, 1), 4, 4 * max(1, rows_per_step), depth, width)
+
+
 @njit(parallel=True, cache=True, fastmath=False)
-def bp_level(cost, set0, set1, slopes, iterations, rows_per_step=ROWS_PER_STEP):  # pragma: no cover - compiled
-    """Run ``iterations`` synchronous min-sum updates in place; returns which set holds the result (0 or 1).
+def bp_level(cost, start, final, rings, slopes, iterations, rows_per_step=ROWS_PER_STEP):  # pragma: no cover - compiled
+    """Run ``iterations`` synchronous min-sum updates from the messages in ``start``; the result lands in ``final``.
 
-    cost ``(B, H, D, W)`` row-major, C-contiguous; ``set0`` the incoming messages [from left, from right,
-    from up, from down] ``(4, B, H, D, W)`` (zero in the border slots that receive no message), ``set1`` a
-    buffer of the same shape (any content: its border slots are zeroed here, the rest is written before it
-    is read); ``slopes (B, 8, H, W)`` = λ·w to the right, left, down, up neighbour, then the same four times
-    the truncation ``T``.
+    cost ``(B, H, D, W)`` row-major, C-contiguous; ``start`` the incoming messages ``(B, 4, H, D, W)``
+    [from left, from right, from up, from down] (zero in the border slots that receive no message); ``final``
+    the same shape, and with ``iterations >= 2`` it may be ``start`` itself (then updated in place; with one
+    iteration it must be another buffer); ``rings`` scratch of :func:`ring_shape` (any content); ``slopes (B, 8,
+    H, W)`` = λ·w to the right, left, down, up neighbour, then the same four times the truncation ``T``.
 
-    Iteration ``j`` reads set ``j % 2`` and writes set ``(j + 1) % 2``, row by row. Instead of sweeping the
-    grid once per iteration, the iterations run as a wavefront over blocks of ``K = rows_per_step`` rows: at
-    step ``t`` iteration ``j`` updates block ``t - 2j``, so the rows the later iterations need are still in
-    cache (the grid is streamed from memory once per level, not once per iteration). A row's update reads
-    only its own incoming messages and writes its own row and the two next to it, so the lag of two blocks
-    keeps it exactly synchronous for any ``K >= 1``: iteration ``j`` at block ``b`` needs iteration ``j - 1``'s
-    writes into the block, made from blocks ``b - 1 .. b + 1`` (done at steps up to ``t - 1``), and what it
-    writes (the block and one row either side, in the other set) never meets a row that another iteration
-    reads or writes in the same step; so the ``iterations`` blocks of one step run in parallel, and every ``K``
-    gives the same bits. ``K = 1`` keeps the most in cache; a larger ``K`` has ``K`` times fewer steps, each
-    ending at a barrier where the threads wait for each other (the cost that grows when other work shares
-    the cores).
+    Iteration ``j`` reads the message set ``S_j`` and writes ``S_{j+1}``, row by row: ``S_0 = start``,
+    ``S_J = final`` (``J = iterations``), and the sets in between live in the rings: row ``y`` of ``S_j`` at
+    row ``y % R`` of ring ``j - 1`` (``R = 4 K``). The iterations run as a wavefront over blocks of
+    ``K = rows_per_step`` rows: at step ``t`` iteration ``j`` updates block ``t - 2j``. A row's update reads only
+    its own incoming messages and writes its own row and the two next to it (and zeroes the border slots it
+    owns), so the lag of two blocks keeps it exactly synchronous for any ``K >= 1``: iteration ``j`` at block
+    ``b`` needs iteration ``j - 1``'s writes into the block, made from blocks ``b - 1 .. b + 1`` (done at steps up
+    to ``t - 1``), and what it writes (the block and one row either side) never meets a row that another
+    iteration reads or writes in the same step; so the blocks of one step run in parallel, and every ``K``
+    gives the same bits. The same lag bounds what a ring must hold: when iteration ``j`` writes rows up to
+    ``(b + 1) K``, iteration ``j + 1`` has consumed every row before ``(b - 2) K``, so ``3 K + 1 <= R`` rows are
+    live; and ``final`` can overwrite ``start`` because iteration ``J - 1`` writes rows that iteration 0 read at
+    least one step earlier (``J >= 2``). So one whole set of messages is held instead of two, and the sets in
+    between stay in cache. ``K = 1`` keeps the most in cache; a larger ``K`` has ``K``
+    times fewer steps, each ending at a barrier where the threads wait for each other (the cost that grows
+    when other work shares the cores).
     """
     B, H, D, W = cost.shape
-    # border slots that receive no message stay 0
-    for b in range(B):
-        for d in range(D):
-            for y in range(H):
-                set1[0, b, y, d, 0] = 0
-                set1[1, b, y, d, W - 1] = 0
-            for x in range(W):
-                set1[2, b, 0, d, x] = 0
-                set1[3, b, H - 1, d, x] = 0
     K = max(1, rows_per_step)
+    R = rings.shape[2]
     n_blocks = (H + K - 1) // K
+    last = iterations - 1
     for b in range(B):
         for t in range(n_blocks + 2 * (iterations - 1)):
             for j in prange(iterations):
                 blk = t - 2 * j
                 if 0 <= blk < n_blocks:
                     for y in range(blk * K, min(blk * K + K, H)):
-                        if j % 2 == 0:
-                            _update_row(cost, set0, set1, slopes, b, y)
+                        if j == 0 and j == last:
+                            _update_row(cost, start[b], H, final[b], H, slopes, b, y)
+                        elif j == 0:
+                            _update_row(cost, start[b], H, rings[0], R, slopes, b, y)
+                        elif j == last:
+                            _update_row(cost, rings[j - 1], R, final[b], H, slopes, b, y)
                         else:
-                            _update_row(cost, set1, set0, slopes, b, y)
-    return iterations % 2
+                            _update_row(cost, rings[j - 1], R, rings[j], R, slopes, b, y)
 
 
 @njit(cache=True, fastmath=False)
-def _update_row(cost, src, dst, slopes, b, y):  # pragma: no cover - compiled
+def _update_row(cost, src, src_rows, dst, dst_rows, slopes, b, y):  # pragma: no cover - compiled
     """One synchronous update of row ``(b, y)``: read its incoming messages in ``src``, write the four
-    outgoing ones into ``dst`` (``src``/``dst`` ``(4, B, H, D, W)``, [from left, right, up, down]).
+    outgoing ones into ``dst`` (``src``/``dst`` ``(4, rows, D, W)``, [from left, right, up, down]; grid row ``y``
+    is row ``y % src_rows`` / ``y % dst_rows``: a whole grid, or a ring).
 
     Row ``y`` writes ``dst`` from-left/from-right of its own row, from-up of row ``y + 1`` and from-down of
-    row ``y - 1``: no two rows write the same slot.
+    row ``y - 1``: no two rows write the same slot. It also zeroes the slots of its own row that no neighbour
+    writes (from-left at ``x = 0``, from-right at ``x = W - 1``, from-up in row 0, from-down in row ``H - 1``).
     """
     B, H, D, W = cost.shape
     total = np.empty((D, W), dtype=cost.dtype)
     out = np.empty((D, W), dtype=cost.dtype)
     lowest = np.empty((2, W), dtype=cost.dtype)
     scratch = np.empty((2, W), dtype=cost.dtype)
+    ys = y % src_rows
+    yd = y % dst_rows
     for d in range(D):
         t = total[d]
         cd = cost[b, y, d]
-        ld = src[0, b, y, d]
-        rd = src[1, b, y, d]
-        ud = src[2, b, y, d]
-        dd = src[3, b, y, d]
+        ld = src[0, ys, d]
+        rd = src[1, ys, d]
+        ud = src[2, ys, d]
+        dd = src[3, ys, d]
         for x in range(W):
             t[x] = _narrow(cd[x] + ld[x] + rd[x] + ud[x] + dd[x], total)
+    zero = total.dtype.type(0)
+    for d in range(D):
+        dst[0, yd, d, 0] = zero
+        dst[1, yd, d, W - 1] = zero
+    if y == 0:
+        dst[2, yd] = zero
+    if y == H - 1:
+        dst[3, yd] = zero
     if W > 1:  # to the right neighbour (0..W-2 send to 1..W-1), to the left (1..W-1 send to 0..W-2)
-        _send_row(total, src[1], slopes, 0, dst[0], out, lowest, scratch, b, y, y, 0, 1, W - 1)
-        _send_row(total, src[0], slopes, 1, dst[1], out, lowest, scratch, b, y, y, 1, 0, W - 1)
+        _send_row(total, src[1], ys, slopes, 0, dst[0], out, lowest, scratch, b, y, yd, 0, 1, W - 1)
+        _send_row(total, src[0], ys, slopes, 1, dst[1], out, lowest, scratch, b, y, yd, 1, 0, W - 1)
     if y + 1 < H:
-        _send_row(total, src[3], slopes, 2, dst[2], out, lowest, scratch, b, y, y + 1, 0, 0, W)
+        _send_row(total, src[3], ys, slopes, 2, dst[2], out, lowest, scratch, b, y, (y + 1) % dst_rows, 0, 0, W)
     if y >= 1:
-        _send_row(total, src[2], slopes, 3, dst[3], out, lowest, scratch, b, y, y - 1, 0, 0, W)
+        _send_row(total, src[2], ys, slopes, 3, dst[3], out, lowest, scratch, b, y, (y - 1) % dst_rows, 0, 0, W)
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -261,7 +280,7 @@ def beliefs_argmin(cost, messages, beliefs, labels, scale):  # pragma: no cover 
     """``beliefs = (cost + m0 + m1 + m2 + m3) * scale`` (summed left to right) and ``labels`` its first argmin
     over d, row-major.
 
-    cost ``(B, H, D, W)`` and messages ``(4, B, H, D, W)`` of one dtype (float, or int16 in fixed point), (output)
+    cost ``(B, H, D, W)`` and messages ``(B, 4, H, D, W)`` of one dtype (float, or int16 in fixed point), (output)
     beliefs ``(B, H, D, W)`` float, ``scale`` of the beliefs' dtype (1 for float costs: the same bits; ``1/s`` in
     fixed point, a power of two, so the int16 sums come back exactly), (output) labels ``(B, H, W)`` int64. The
     running minimum ping-pongs between two rows (no select-write in place: that stays scalar).
@@ -274,10 +293,10 @@ def beliefs_argmin(cost, messages, beliefs, labels, scale):  # pragma: no cover 
         lab = np.zeros((2, W), dtype=np.int64)
         for d in range(D):
             c = cost[b, y, d]
-            a0 = messages[0, b, y, d]
-            a1 = messages[1, b, y, d]
-            a2 = messages[2, b, y, d]
-            a3 = messages[3, b, y, d]
+            a0 = messages[b, 0, y, d]
+            a1 = messages[b, 1, y, d]
+            a2 = messages[b, 2, y, d]
+            a3 = messages[b, 3, y, d]
             out = beliefs[b, y, d]
             for x in range(W):
                 out[x] = _narrow(c[x] + a0[x] + a1[x] + a2[x] + a3[x], cost) * scale
