@@ -94,7 +94,7 @@ def _slope_array(slopes: list[torch.Tensor], truncation: float) -> np.ndarray:
 def _run_level_numba(cost: np.ndarray, start: np.ndarray, slope_array: np.ndarray, iterations: int) -> np.ndarray:
     """Same as :func:`_run_level` through the numba kernel, on *row-major* arrays; returns the final messages.
 
-    cost ``(B, H, D, W)``; ``start`` the incoming messages ``(B, 4, H, D, W)`` [from left, right, up, down], updated
+    cost ``(B, H, D, W)``; ``start`` the incoming messages ``(B, H, 4, D, W)`` [from left, right, up, down], updated
     in place when ``iterations >= 2``; ``slope_array`` from :func:`_slope_array` (all float32/float64, or all int16
     in fixed point).
     """
@@ -146,8 +146,14 @@ def _largest(x: torch.Tensor) -> float:
 
 
 def _to_fixed(x: np.ndarray, scale: int) -> np.ndarray:
-    """``round(x · scale)`` as int16 (the caller has checked the range)."""
-    return np.rint(x * np.float32(scale)).astype(np.int16)
+    """``round(x · scale)`` as int16 (the caller has checked the range; float32 ``x`` of 4 or 5 dimensions), by the
+    parallel kernel :func:`stereonet.kernels.bp.round_rows`: the same values as ``np.rint(x * np.float32(scale))``."""
+    from stereonet.kernels.bp import round_rows
+
+    out = np.empty(x.shape, dtype=np.int16)
+    rows = (-1,) + x.shape[-3:]
+    round_rows(x.reshape(rows), np.float32(scale), out.reshape(rows))
+    return out
 
 
 def _pool_sum(x: torch.Tensor) -> torch.Tensor:
@@ -213,7 +219,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                         F.avg_pool2d(F.pad(d, (0, d.shape[-1] % 2, 0, d.shape[-2] % 2), mode="replicate"), 2)))
     truncation_eff = min(truncation, float(cost.shape[1]))
     if numba_path:
-        from stereonet.kernels.bp import beliefs_argmin, pool_sum2, round_rows, upsample2
+        from stereonet.kernels.bp import beliefs_argmin, beliefs_view, pool_sum2, round_rows, upsample2
 
         # the kernels work row-major (B, H, D, W): each grid row is D contiguous runs of W pixels
         B, D, H, W = cost.shape
@@ -238,28 +244,29 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                 if level > 0:
                     costs[level] = _to_fixed(costs[level], scale)
                 slope_arrays[level] = _to_fixed(slope_arrays[level], scale)
-        # each level's messages (B, 4, h, D, w) are updated in place; the coarser level's result initialises them
-        # (each coarse pixel's messages copied to its 2x2 children) and is then dropped
+        # each level's messages (B, h, 4, D, w) are updated in place; the coarser level's result initialises them
+        # (each coarse pixel's messages copied to its 2x2 children: the four slots of a row are one (4D, w) block)
+        # and is then dropped
         result = None
         for level in range(levels - 1, -1, -1):
             c = costs[level]
-            shape = (c.shape[0], 4) + c.shape[1:]
+            shape = c.shape[:2] + (4,) + c.shape[2:]
             if result is None:
                 start = np.zeros(shape, dtype=c.dtype)
             else:
                 start = np.empty(shape, dtype=c.dtype)
                 src = result if result.dtype == c.dtype else _to_fixed(result, scale)
-                upsample2(src.reshape((-1,) + src.shape[2:]), start.reshape((-1,) + c.shape[1:]))
+                upsample2(src.reshape(src.shape[:2] + (-1, src.shape[-1])), start.reshape(shape[:2] + (-1, shape[-1])))
                 del src
                 result = None
             result = _run_level_numba(c, start, slope_arrays[level], iterations)
             del start
-        # outputs allocated by numpy (large allocations get transparent huge pages: fewer page faults)
-        out_dtype = np.dtype(np.float32) if fixed[0] else costs[0].dtype
-        beliefs_rows = np.empty((B, H, D, W), dtype=out_dtype)
-        labels_rows = np.empty((B, H, W), dtype=np.int64)
+        # the beliefs are written over the finest messages (no new volume) and returned as a strided view of them;
         # fixed point: beliefs back in cost units (1/s is a power of two: exact)
-        beliefs_argmin(costs[0], result, beliefs_rows, labels_rows, out_dtype.type(1.0 / scale if fixed[0] else 1.0))
+        out_dtype = np.dtype(np.float32) if fixed[0] else costs[0].dtype
+        labels_rows = np.empty((B, H, W), dtype=np.int64)
+        beliefs_argmin(costs[0], result, labels_rows, np.array([1.0 / scale if fixed[0] else 1.0], dtype=out_dtype))
+        beliefs_rows = beliefs_view(result, out_dtype)
         del result, costs
         beliefs = torch.from_numpy(beliefs_rows).permute(0, 2, 1, 3).to(cost.device)  # BxDxHxW view
         labels = torch.from_numpy(labels_rows).unsqueeze(1).to(cost.device)

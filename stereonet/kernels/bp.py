@@ -45,18 +45,18 @@ def _narrow_overload(value, like):
 
 
 @njit(cache=True, fastmath=False)
-def _send_row(total, exclude, y_src, slopes, k, dest, out, lowest, row, b, y, y_dest, x0, x_dest, n):  # pragma: no cover
+def _send_row(total, exclude, y_src, k_src, slopes, k, dest, y_dest, k_dest, out, lowest, row, b, y, x0, x_dest, n):  # pragma: no cover
     """One outgoing message of the ``n`` pixels ``x0 .. x0+n-1`` of row ``(b, y)``, written shifted into ``dest``.
 
-    ``dest[y_dest, :, x_dest + i] = DT(total[:, x0 + i] - exclude[y_src, :, x0 + i])`` normalised to min 0,
+    ``dest[y_dest, k_dest, :, x_dest + i] = DT(total[:, x0 + i] - exclude[y_src, k_src, :, x0 + i])`` normalised to min 0,
     DT the truncated-linear distance transform: forward pass ``f[d] = min(h[d], f[d-1] + s)``, backward
     pass ``g[d] = min(f[d], g[d+1] + s, lowest + s·T)`` (the cap folded in: ``min(g[d+1], cap) + s`` only
     differs from ``g[d+1] + s`` where both are above the cap), ``lowest = min_d h = min_d f`` (s >= 0),
     which is also the minimum of the message: the normalisation subtracts it.
 
-    total, out: ``(D, W)`` row scratch (``out`` gets the forward pass); exclude, dest: ``(rows, D, W)`` (one
-    message slot of a set: a whole grid or a ring of rows, indexed by the caller's row numbers ``y_src`` and
-    ``y_dest``); slopes ``(B, 8, H, W)`` with s at channel ``k`` and s·T at ``k + 4``; lowest, row: ``(2, W)``
+    total, out: ``(D, W)`` row scratch (``out`` gets the forward pass); exclude, dest: ``(rows, 4, D, W)`` message
+    sets (a whole grid or a ring of rows, indexed by the caller's row numbers ``y_src`` and ``y_dest``, slots
+    ``k_src`` and ``k_dest``); slopes ``(B, 8, H, W)`` with s at channel ``k`` and s·T at ``k + 4``; lowest, row: ``(2, W)``
     ping-pong scratch. Every inner loop runs over ``i`` on 1-d C-contiguous slices indexed by ``i`` alone, and
     no loop reads and select-writes the same buffer (LLVM turns that into a masked store and stays scalar).
     """
@@ -64,7 +64,7 @@ def _send_row(total, exclude, y_src, slopes, k, dest, out, lowest, row, b, y, y_
     s = slopes[b, k, y, x0:x0 + n]
     sT = slopes[b, k + 4, y, x0:x0 + n]
     t = total[0, x0:x0 + n]
-    e = exclude[y_src, 0, x0:x0 + n]
+    e = exclude[y_src, k_src, 0, x0:x0 + n]
     cur = out[0, :n]
     lo = lowest[0, :n]
     for i in range(n):
@@ -73,7 +73,7 @@ def _send_row(total, exclude, y_src, slopes, k, dest, out, lowest, row, b, y, y_
         lo[i] = v
     for d in range(1, D):
         t = total[d, x0:x0 + n]
-        e = exclude[y_src, d, x0:x0 + n]
+        e = exclude[y_src, k_src, d, x0:x0 + n]
         prev = out[d - 1, :n]
         cur = out[d, :n]
         lo_old = lowest[(d - 1) % 2, :n]
@@ -91,7 +91,7 @@ def _send_row(total, exclude, y_src, slopes, k, dest, out, lowest, row, b, y, y_
         cp[i] = _narrow(lo[i] + sT[i], out)
     f = out[D - 1, :n]
     g = row[(D - 1) % 2, :n]
-    dst = dest[y_dest, D - 1, x_dest:x_dest + n]
+    dst = dest[y_dest, k_dest, D - 1, x_dest:x_dest + n]
     for i in range(n):
         c = f[i]
         q = cp[i]
@@ -102,7 +102,7 @@ def _send_row(total, exclude, y_src, slopes, k, dest, out, lowest, row, b, y, y_
         f = out[d, :n]
         nxt = row[(d + 1) % 2, :n]
         g = row[d % 2, :n]
-        dst = dest[y_dest, d, x_dest:x_dest + n]
+        dst = dest[y_dest, k_dest, d, x_dest:x_dest + n]
         for i in range(n):
             c = f[i]
             v = _narrow(nxt[i] + s[i], out)
@@ -116,15 +116,15 @@ def _send_row(total, exclude, y_src, slopes, k, dest, out, lowest, row, b, y, y_
 def ring_shape(iterations: int, rows_per_step: int, depth: int, width: int) -> tuple[int, int, int, int, int]:
     """Shape of :func:`bp_level`'s ``rings`` scratch: one ring of ``4 K`` rows of the four message slots per
     intermediate iteration (at least one ring, so the shape is never empty)."""
-    return (max(iterations - 1, 1), 4, 4 * max(1, rows_per_step), depth, width)
+    return (max(iterations - 1, 1), 4 * max(1, rows_per_step), 4, depth, width)
 
 
 @njit(parallel=True, cache=True, fastmath=False)
 def bp_level(cost, start, final, rings, slopes, iterations, rows_per_step=ROWS_PER_STEP):  # pragma: no cover - compiled
     """Run ``iterations`` synchronous min-sum updates from the messages in ``start``; the result lands in ``final``.
 
-    cost ``(B, H, D, W)`` row-major, C-contiguous; ``start`` the incoming messages ``(B, 4, H, D, W)``
-    [from left, from right, from up, from down] (zero in the border slots that receive no message); ``final``
+    cost ``(B, H, D, W)`` row-major, C-contiguous; ``start`` the incoming messages ``(B, H, 4, D, W)``
+    [from left, from right, from up, from down] (a row's four slots side by side) (zero in the border slots that receive no message); ``final``
     the same shape, and with ``iterations >= 2`` it may be ``start`` itself (then updated in place; with one
     iteration it must be another buffer); ``rings`` scratch of :func:`ring_shape` (any content); ``slopes (B, 8,
     H, W)`` = λ·w to the right, left, down, up neighbour, then the same four times the truncation ``T``.
@@ -148,7 +148,7 @@ def bp_level(cost, start, final, rings, slopes, iterations, rows_per_step=ROWS_P
     """
     B, H, D, W = cost.shape
     K = max(1, rows_per_step)
-    R = rings.shape[2]
+    R = rings.shape[1]
     n_blocks = (H + K - 1) // K
     last = iterations - 1
     for b in range(B):
@@ -170,7 +170,7 @@ def bp_level(cost, start, final, rings, slopes, iterations, rows_per_step=ROWS_P
 @njit(cache=True, fastmath=False)
 def _update_row(cost, src, src_rows, dst, dst_rows, slopes, b, y):  # pragma: no cover - compiled
     """One synchronous update of row ``(b, y)``: read its incoming messages in ``src``, write the four
-    outgoing ones into ``dst`` (``src``/``dst`` ``(4, rows, D, W)``, [from left, right, up, down]; grid row ``y``
+    outgoing ones into ``dst`` (``src``/``dst`` ``(rows, 4, D, W)``, [from left, right, up, down]; grid row ``y``
     is row ``y % src_rows`` / ``y % dst_rows``: a whole grid, or a ring).
 
     Row ``y`` writes ``dst`` from-left/from-right of its own row, from-up of row ``y + 1`` and from-down of
@@ -187,27 +187,27 @@ def _update_row(cost, src, src_rows, dst, dst_rows, slopes, b, y):  # pragma: no
     for d in range(D):
         t = total[d]
         cd = cost[b, y, d]
-        ld = src[0, ys, d]
-        rd = src[1, ys, d]
-        ud = src[2, ys, d]
-        dd = src[3, ys, d]
+        ld = src[ys, 0, d]
+        rd = src[ys, 1, d]
+        ud = src[ys, 2, d]
+        dd = src[ys, 3, d]
         for x in range(W):
             t[x] = _narrow(cd[x] + ld[x] + rd[x] + ud[x] + dd[x], total)
     zero = total.dtype.type(0)
     for d in range(D):
-        dst[0, yd, d, 0] = zero
-        dst[1, yd, d, W - 1] = zero
+        dst[yd, 0, d, 0] = zero
+        dst[yd, 1, d, W - 1] = zero
     if y == 0:
-        dst[2, yd] = zero
+        dst[yd, 2] = zero
     if y == H - 1:
-        dst[3, yd] = zero
+        dst[yd, 3] = zero
     if W > 1:  # to the right neighbour (0..W-2 send to 1..W-1), to the left (1..W-1 send to 0..W-2)
-        _send_row(total, src[1], ys, slopes, 0, dst[0], out, lowest, scratch, b, y, yd, 0, 1, W - 1)
-        _send_row(total, src[0], ys, slopes, 1, dst[1], out, lowest, scratch, b, y, yd, 1, 0, W - 1)
+        _send_row(total, src, ys, 1, slopes, 0, dst, yd, 0, out, lowest, scratch, b, y, 0, 1, W - 1)
+        _send_row(total, src, ys, 0, slopes, 1, dst, yd, 1, out, lowest, scratch, b, y, 1, 0, W - 1)
     if y + 1 < H:
-        _send_row(total, src[3], ys, slopes, 2, dst[2], out, lowest, scratch, b, y, (y + 1) % dst_rows, 0, 0, W)
+        _send_row(total, src, ys, 3, slopes, 2, dst, (y + 1) % dst_rows, 2, out, lowest, scratch, b, y, 0, 0, W)
     if y >= 1:
-        _send_row(total, src[2], ys, slopes, 3, dst[3], out, lowest, scratch, b, y, (y - 1) % dst_rows, 0, 0, W)
+        _send_row(total, src, ys, 2, slopes, 3, dst, (y - 1) % dst_rows, 3, out, lowest, scratch, b, y, 0, 0, W)
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -275,31 +275,45 @@ def round_rows(cost, scale, out):  # pragma: no cover - compiled
                 dst[x] = np.int16(np.rint(src[x] * scale))
 
 
-@njit(parallel=True, cache=True, fastmath=False)
-def beliefs_argmin(cost, messages, beliefs, labels, scale):  # pragma: no cover - compiled
-    """``beliefs = (cost + m0 + m1 + m2 + m3) * scale`` (summed left to right) and ``labels`` its first argmin
-    over d, row-major.
+def beliefs_view(messages: np.ndarray, dtype) -> np.ndarray:
+    """The ``(B, H, D, W)`` beliefs of :func:`beliefs_argmin` as a strided view of its ``messages`` buffer: row
+    ``(b, y)``'s beliefs take the first ``D·W`` values of ``dtype`` of that row's four message slots."""
+    B, H, _, D, W = messages.shape
+    raw = messages.reshape(B, H, -1).view(np.uint8)
+    return raw[:, :, :D * W * np.dtype(dtype).itemsize].view(dtype).reshape(B, H, D, W)
 
-    cost ``(B, H, D, W)`` and messages ``(B, 4, H, D, W)`` of one dtype (float, or int16 in fixed point), (output)
-    beliefs ``(B, H, D, W)`` float, ``scale`` of the beliefs' dtype (1 for float costs: the same bits; ``1/s`` in
-    fixed point, a power of two, so the int16 sums come back exactly), (output) labels ``(B, H, W)`` int64. The
-    running minimum ping-pongs between two rows (no select-write in place: that stays scalar).
+
+@njit(parallel=True, cache=True, fastmath=False)
+def beliefs_argmin(cost, messages, labels, scale):  # pragma: no cover - compiled
+    """``beliefs = (cost + m0 + m1 + m2 + m3) * scale`` (summed left to right), written over the messages, and
+    ``labels`` its first argmin over d, row-major.
+
+    cost ``(B, H, D, W)`` and messages ``(B, H, 4, D, W)`` of one dtype (float, or int16 in fixed point), C-contiguous;
+    ``scale`` a 1-element array of the beliefs' dtype (1 for float costs: the same bits; ``1/s`` in fixed point, a
+    power of two, so the int16 sums come back exactly); (output) labels ``(B, H, W)`` int64. Each row's beliefs are computed into a
+    scratch row and then copied over the row's own message slots (a row's four slots hold at least one row of
+    beliefs of ``scale``'s dtype: float32 over int16 or float32 slots, float64 over float64), so no separate
+    volume is allocated; :func:`beliefs_view` reads them back. The running minimum ping-pongs between two rows (no
+    select-write in place: that stays scalar).
     """
     B, H, D, W = cost.shape
+    s = scale[0]
     for row in prange(B * H):
         b = row // H
         y = row % H
-        best = np.empty((2, W), dtype=beliefs.dtype)
+        bel = np.empty((D, W), dtype=scale.dtype)
+        best = np.empty((2, W), dtype=bel.dtype)
         lab = np.zeros((2, W), dtype=np.int64)
+        m = messages[b, y]
         for d in range(D):
             c = cost[b, y, d]
-            a0 = messages[b, 0, y, d]
-            a1 = messages[b, 1, y, d]
-            a2 = messages[b, 2, y, d]
-            a3 = messages[b, 3, y, d]
-            out = beliefs[b, y, d]
+            a0 = m[0, d]
+            a1 = m[1, d]
+            a2 = m[2, d]
+            a3 = m[3, d]
+            out = bel[d]
             for x in range(W):
-                out[x] = _narrow(c[x] + a0[x] + a1[x] + a2[x] + a3[x], cost) * scale
+                out[x] = _narrow(c[x] + a0[x] + a1[x] + a2[x] + a3[x], cost) * s
             if d == 0:
                 b0 = best[0]
                 for x in range(W):
@@ -319,3 +333,7 @@ def beliefs_argmin(cost, messages, beliefs, labels, scale):  # pragma: no cover 
         dst = labels[b, y]
         for x in range(W):
             dst[x] = final[x]
+        flat = bel.reshape(D * W)
+        into = m.reshape(4 * D * W).view(bel.dtype)
+        for i in range(D * W):
+            into[i] = flat[i]

@@ -146,7 +146,7 @@ def test_wavefront_blocks_of_rows_give_the_same_bits(rows_per_step):
     slopes = np.concatenate([s := (rng.random((2, 4, 37, 29)) * 0.8).astype(np.float32), s * np.float32(3.0)], 1)
     results = []
     for k in (1, rows_per_step):
-        start = np.zeros((2, 4, 37, 9, 29), np.float32)
+        start = np.zeros((2, 37, 4, 9, 29), np.float32)
         rings = np.full(ring_shape(4, k, 9, 29), np.nan, np.float32)  # any content: every slot read is written first
         bp_level(cost, start, start, rings, np.ascontiguousarray(slopes), 4, k)
         results.append(start)
@@ -166,16 +166,16 @@ def test_one_iteration_writes_every_slot_of_a_fresh_final_set():
     cost = (rng.random((1, 11, 6, 13)) * 4).astype(np.float32)
     slopes = np.ascontiguousarray(np.concatenate([s := (rng.random((1, 4, 11, 13)) * 0.8).astype(np.float32),
                                                   s * np.float32(2.0)], 1))
-    start = (rng.random((1, 4, 11, 6, 13)) * 0.5).astype(np.float32)
-    start[:, 0, :, :, 0] = start[:, 1, :, :, -1] = start[:, 2, 0] = start[:, 3, -1] = 0
+    start = (rng.random((1, 11, 4, 6, 13)) * 0.5).astype(np.float32)
+    start[:, :, 0, :, 0] = start[:, :, 1, :, -1] = start[:, 0, 2] = start[:, -1, 3] = 0
     finals = []
     for fill in (np.nan, 0.0):
         final = np.full_like(start, fill)
         bp_level(cost, start, final, np.full(ring_shape(1, 1, 6, 13), np.nan, np.float32), slopes, 1, 1)
         finals.append(final)
     assert np.isfinite(finals[0]).all() and np.array_equal(finals[0], finals[1])
-    assert not finals[0][:, 0, :, :, 0].any() and not finals[0][:, 1, :, :, -1].any()
-    assert not finals[0][:, 2, 0].any() and not finals[0][:, 3, -1].any()
+    assert not finals[0][:, :, 0, :, 0].any() and not finals[0][:, :, 1, :, -1].any()
+    assert not finals[0][:, 0, 2].any() and not finals[0][:, -1, 3].any()
 
 def _on_grid(x: torch.Tensor, scale: int = 1024) -> torch.Tensor:
     return (x * scale).round() / scale
