@@ -245,29 +245,33 @@ def out_of_image_cost(row_maxima: list[np.ndarray]) -> np.float32:
 
 
 def numba_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
-                      **options) -> torch.Tensor:
+                      layout: str = "hwd", **options) -> torch.Tensor:
     """The numba CPU path of every cost (inputs already checked): same definitions as the torch path,
     computed row by row by :func:`stereonet.kernels.block.block_cost_rows` (``options``: those of
     :func:`numba_engine_args`).
 
     Returns:
-        :math:`(B, D, H, W)` float32 *view* of a ``(B, H, W, D)`` buffer (disparity innermost, the layout
-        the numba SGM and selection kernels read without copying), cast to the input dtype.
+        :math:`(B, D, H, W)` float32 *view* of a ``(B, H, W, D)`` buffer (``layout="hwd"``: disparity innermost,
+        the layout the numba SGM and selection kernels read without copying) or of a ``(B, H, D, W)`` buffer
+        (``"hdw"``: each image row as ``D`` runs of ``W`` costs, the engine's own rows, for ``bp``), cast to the
+        input dtype. Same values either way.
     """
-    from stereonet.kernels.block import MODE_VOLUME
-    from stereonet.kernels.cost import fill_invalid_hwd
+    from stereonet.kernels.block import MODE_VOLUME, MODE_VOLUME_ROWS
+    from stereonet.kernels.cost import fill_invalid_hdw, fill_invalid_hwd
 
+    rows = check_layout(layout) == "hdw"
     vols, maxima = [], []
     for b in range(left.shape[0]):
-        res = run_block_engine(MODE_VOLUME, numba_engine_args(left[b], right[b], cost, window, **options),
-                               max_disp + 1)
+        res = run_block_engine(MODE_VOLUME_ROWS if rows else MODE_VOLUME,
+                               numba_engine_args(left[b], right[b], cost, window, **options), max_disp + 1)
         vols.append(res[0])
         maxima.append(res[1])
     fill = out_of_image_cost(maxima)
     for v in vols:
-        fill_invalid_hwd(v, fill)
-    out = torch.from_numpy(np.stack(vols) if len(vols) > 1 else vols[0][None])  # BxHxWxD
-    return out.permute(0, 3, 1, 2).to(device=left.device, dtype=left.dtype)  # BxDxHxW view
+        (fill_invalid_hdw if rows else fill_invalid_hwd)(v, fill)
+    out = torch.from_numpy(np.stack(vols) if len(vols) > 1 else vols[0][None])  # BxHxWxD or BxHxDxW
+    out = out.permute(0, 2, 1, 3) if rows else out.permute(0, 3, 1, 2)  # BxDxHxW view
+    return out.to(device=left.device, dtype=left.dtype)
 
 
 CENSUS_U8_MAX_WINDOW = 15  # census windows whose distances (and max + 1) fit in uint8: 15 * 15 - 1 = 224 bits
@@ -310,59 +314,72 @@ def _sq_diff(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
     return (lf - rs).square().mean(1)
 
 
-def _prepare(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int) -> tuple:
+def _prepare(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int, layout: str = "hwd") -> tuple:
     left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    check_layout(layout)
     return left, right, max_disp, check_window(window)
+
+
+LAYOUTS = ("hwd", "hdw")
+"""Memory orders of a numba cost volume behind its ``(B, D, H, W)`` view: disparity innermost (``"hwd"``, what the
+numba SGM and selection kernels read) or image rows of ``D`` runs of ``W`` costs (``"hdw"``, what ``bp`` reads).
+The values are the same; the torch path returns a contiguous ``(B, D, H, W)`` volume whatever the layout."""
+
+
+def check_layout(layout: object) -> str:
+    if layout not in LAYOUTS:
+        raise StereoInputError(f"layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
+    return layout
 
 
 def ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, *,
                    memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                   backend: str = "auto") -> torch.Tensor:
+                   backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """Pixelwise absolute difference (mean over channels). ``left``/``right`` (B, C, H, W) -> (B, D, H, W)."""
-    left, right, max_disp, _ = _prepare(left, right, max_disp, 1)
+    left, right, max_disp, _ = _prepare(left, right, max_disp, 1, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "ad", 1)
+        return numba_cost_volume(left, right, max_disp, "ad", 1, layout=layout)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, memory_budget=memory_budget)
 
 
 def sad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
                     memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                    backend: str = "auto") -> torch.Tensor:
+                    backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """Window mean of absolute differences. (B, C, H, W) pair -> (B, D, H, W)."""
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "sad", window)
+        return numba_cost_volume(left, right, max_disp, "sad", window, layout=layout)
     return sweep_cost_volume(left, right, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
 
 
 def ssd_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
                     memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                    backend: str = "auto") -> torch.Tensor:
+                    backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """Window mean of squared differences. (B, C, H, W) pair -> (B, D, H, W)."""
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "ssd", window)
+        return numba_cost_volume(left, right, max_disp, "ssd", window, layout=layout)
     return sweep_cost_volume(left, right, max_disp, _sq_diff, _box(window), memory_budget=memory_budget)
 
 
 def zsad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
                      memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                     backend: str = "auto") -> torch.Tensor:
+                     backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """SAD of zero-mean images ``I - box_mean(I, window)`` (see module doc). -> (B, D, H, W)."""
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "zsad", window)
+        return numba_cost_volume(left, right, max_disp, "zsad", window, layout=layout)
     lz, rz = left - box_mean(left, window), right - box_mean(right, window)
     return sweep_cost_volume(lz, rz, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
 
 
 def lssad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
                       memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                      backend: str = "auto") -> torch.Tensor:
+                      backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """SAD of locally scaled images ``I / (box_mean(I, window) + 1/255)`` (see module doc). -> (B, D, H, W)."""
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "lssad", window)
+        return numba_cost_volume(left, right, max_disp, "lssad", window, layout=layout)
     ls = left / (box_mean(left, window) + LSSAD_EPS)
     rs = right / (box_mean(right, window) + LSSAD_EPS)
     return sweep_cost_volume(ls, rs, max_disp, _abs_diff, _box(window), memory_budget=memory_budget)
@@ -370,11 +387,11 @@ def lssad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, wi
 
 def ncc_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
                     memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                    backend: str = "auto") -> torch.Tensor:
+                    backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """``1 - NCC`` over the window on grey images; zero variance -> NCC := 0 (cost 1). -> (B, D, H, W) in [0, 2]."""
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "ncc", window)
+        return numba_cost_volume(left, right, max_disp, "ncc", window, layout=layout)
     if window < 3:
         raise StereoInputError(f"window: NCC needs a window of at least 3, got {window}")
     gl, gr = to_grey(left), to_grey(right)
@@ -403,11 +420,12 @@ def _hamming_stack(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
 
 def census_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 1, *,
                        census_window: int = 5, memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                       backend: str = "auto") -> torch.Tensor:
+                       backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """Hamming distance of census codes, box-averaged over ``window``. -> (B, D, H, W) in bits."""
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "census", window, census_window=census_window)
+        return numba_cost_volume(left, right, max_disp, "census", window, census_window=census_window,
+                                 layout=layout)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
 
     def pixel(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
@@ -420,12 +438,12 @@ def census_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, w
 def census_ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 1, *,
                           census_window: int = 5, lambda_census: float = 30.0, lambda_ad: float = 10.0 / 255.0,
                           memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                          backend: str = "auto") -> torch.Tensor:
+                          backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """AD-Census ``2 - exp(-hamming/lambda_census) - exp(-ad/lambda_ad)``. -> (B, D, H, W) in [0, 2)."""
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
         return numba_cost_volume(left, right, max_disp, "census_ad", window, census_window=census_window,
-                                 lambda_census=lambda_census, lambda_ad=lambda_ad)
+                                 lambda_census=lambda_census, lambda_ad=lambda_ad, layout=layout)
     cl, cr = census_transform(left, census_window), census_transform(right, census_window)
 
     def pixel(lf: torch.Tensor, rs: torch.Tensor) -> torch.Tensor:
@@ -442,7 +460,7 @@ def census_ad_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int
 def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, window: int = 5, *,
                          base: str = "sad", mode: str = "multiwindow",
                          memory_budget: int = DEFAULT_MEMORY_BUDGET,
-                         backend: str = "auto") -> torch.Tensor:
+                         backend: str = "auto", layout: str = "hwd") -> torch.Tensor:
     """Adaptive-window aggregation of a pixelwise ``base`` cost (``"sad"`` or ``"ssd"``).
 
     ``mode="multiwindow"`` (Hirschmüller et al. 2002, five windows): the mean over the centre window plus
@@ -453,9 +471,9 @@ def adaptive_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int,
     Returns:
         :math:`(B, D, H, W)` mean costs.
     """
-    left, right, max_disp, window = _prepare(left, right, max_disp, window)
+    left, right, max_disp, window = _prepare(left, right, max_disp, window, layout)
     if use_numba(left, right, backend=backend):
-        return numba_cost_volume(left, right, max_disp, "adaptive", window, mode=mode, base=base)
+        return numba_cost_volume(left, right, max_disp, "adaptive", window, mode=mode, base=base, layout=layout)
     pixel = {"sad": _abs_diff, "ssd": _sq_diff}.get(base)
     if pixel is None:
         raise StereoInputError(f"base: expected 'sad' or 'ssd', got {base!r}")
@@ -488,6 +506,7 @@ def build_cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, co
         cost: cost name.
         window: odd aggregation window (ignored by ``"ad"``).
         **options: per-cost keywords (``census_window``, ``memory_budget``, ``mode``/``base`` for adaptive,
+            ``layout``: the numba volume's memory order, :data:`LAYOUTS`,
             ``backend``: ``"auto"`` (default: the numba kernels for float32 CPU input that needs no gradient,
             else torch), ``"torch"`` (chunked to ``memory_budget``, differentiable) or ``"numba"``).
 

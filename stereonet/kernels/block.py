@@ -8,7 +8,8 @@ each of them over the horizontal window by doubling, so each ``(d, x)`` costs O(
 post-processing, the selection's running minimum over d) is one loop along x that LLVM vectorises. The
 finished ``(D, W)`` cost row then goes either
 
-- into the ``(H, W, D)`` volume (``mode=0``, :func:`stereonet.cost.volume.numba_cost_volume`), or
+- into the ``(H, W, D)`` volume (``mode=0``, :func:`stereonet.cost.volume.numba_cost_volume`), or into an
+  ``(H, D, W)`` volume as it is (``mode=2``, the same values row by row), or
 - straight into the local selection (``mode=1``: WTA, uniqueness, sub-pixel, right-reference WTA and LR
   check of :mod:`stereonet.kernels.select`, :func:`~stereonet.kernels.select.select_row_t`), so block
   matching never materialises the volume.
@@ -49,7 +50,7 @@ from stereonet.kernels.select import (
 ROW_BLOCK = 32
 KIND_ABS, KIND_SQ, KIND_PROD, KIND_HAMMING, KIND_CENSUS_AD = 0, 1, 2, 3, 4
 POST_NONE, POST_NCC, POST_MULTIWINDOW, POST_SHIFTABLE = 0, 1, 2, 3
-MODE_VOLUME, MODE_SELECT = 0, 1
+MODE_VOLUME, MODE_SELECT, MODE_VOLUME_ROWS = 0, 1, 2
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -414,11 +415,11 @@ def box_mean_planes(img, window):
 def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window, lam_c, lam_a,
                     mu_l, isd_l, mu_r, isd_r, method, ratio, lr_tol):
     """The engine (see the module doc). Returns
-    ``(vol, row_max, disp, min_cost, unique, disp_right, lr_ok, strip)``; ``vol`` (H, W, D) only for
-    ``mode=0`` (else (1, 1, 1)), the selection arrays (H, W) only for ``mode=1`` (else (1, 1)).
+    ``(vol, row_max, disp, min_cost, unique, disp_right, lr_ok, strip)``; ``vol`` (H, W, D) for ``mode=0``,
+    (H, D, W) for ``mode=2`` (else (1, 1, 1)), the selection arrays (H, W) only for ``mode=1`` (else (1, 1)).
 
     Args:
-        mode: 0 = volume, 1 = selection.
+        mode: 0 = volume (H, W, D), 1 = selection, 2 = volume (H, D, W).
         kind: pixel cost (``KIND_*``); L, R: (C, H, W) float32 (grey for KIND_PROD); CL, CR: (K, H, W)
             uint64 census codes (K >= 1; unused ones may be (1, 1, 1)).
         n_disp: D; window: odd box window (1 = pixelwise).
@@ -435,7 +436,8 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
     n_ring = 2 * R_post + 1
     sel = mode == MODE_SELECT
     hv, wv = (H, W) if sel else (1, 1)
-    vol = np.empty((H, W, D) if not sel else (1, 1, 1), np.float32)
+    rows_out = mode == MODE_VOLUME_ROWS
+    vol = np.empty((1, 1, 1) if sel else ((H, D, W) if rows_out else (H, W, D)), np.float32)
     disp = np.empty((hv, wv), np.float32)
     min_cost = np.empty((hv, wv), np.float32)
     unique = np.ones((hv, wv), np.bool_)
@@ -501,6 +503,13 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
                                  disp_right, best, bi, second, best_r, ri)
                     if lr_tol >= 0:
                         lr_check_row(dint, disp_right[y], lr_ok[y], lr_tol)
+                elif rows_out:
+                    vy = vol[y]
+                    for d in range(D):
+                        src = row[d]
+                        dst = vy[d]
+                        for x in range(W):
+                            dst[x] = src[x]
                 else:
                     vy = vol[y]
                     for x in range(W):

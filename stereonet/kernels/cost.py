@@ -1,5 +1,5 @@
 """Numba CPU helpers of the cost volumes: census codes and the
-out-of-image fill of ``(H, W, D)`` volumes, the learned-feature cost and the mix of two volumes. The classical
+out-of-image fill of ``(H, W, D)`` and ``(H, D, W)`` volumes, the learned-feature cost and the mix of two volumes. The classical
 volumes themselves, and the box means of planar images, are computed row by row by
 :mod:`stereonet.kernels.block`. Rows (or columns) run in parallel with ``prange``.
 """
@@ -20,6 +20,17 @@ def fill_invalid_hwd(vol, fill):
         for x in range(W):
             for d in range(x + 1, D):
                 vol[y, x, d] = fill
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def fill_invalid_hdw(vol, fill):
+    """vol[y, d, x] = fill for x < d (the ``(H, D, W)`` layout)."""
+    H, D, W = vol.shape
+    for y in prange(H):
+        for d in range(1, D):
+            row = vol[y, d]
+            for x in range(min(d, W)):
+                row[x] = fill
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)

@@ -40,10 +40,12 @@ DEFAULT_WINDOW = 3
 
 
 def _cost_volume(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
-                 cost_options: dict | None) -> torch.Tensor:
+                 cost_options: dict | None, layout: str = "hwd") -> torch.Tensor:
     from stereonet.cost import build_cost_volume
 
-    return build_cost_volume(left, right, max_disp, cost=cost, window=window, **(cost_options or {}))
+    options = dict(cost_options or {})
+    options.setdefault("layout", layout)
+    return build_cost_volume(left, right, max_disp, cost=cost, window=window, **options)
 
 
 def _refine(volume: torch.Tensor, disp: torch.Tensor, subpixel: bool) -> torch.Tensor:
@@ -104,11 +106,12 @@ def _dp(left, volume, mode, occlusion_cost, smoothness, truncation, subpixel) ->
 
 
 def _mrf_problem(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str, window: int,
-                 cost_options: dict | None, contrast_threshold: float, contrast_factor: float
+                 cost_options: dict | None, contrast_threshold: float, contrast_factor: float, layout: str = "hwd"
                  ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
-    """Checked inputs -> (cost volume, weights_right, weights_down) of the MRF shared by ``bp`` and ``graphcut``."""
+    """Checked inputs -> (cost volume, weights_right, weights_down) of the MRF shared by ``bp`` and ``graphcut``
+    (``layout``: the volume's memory order, see :data:`stereonet.cost.volume.LAYOUTS`)."""
     left, right, max_disp = check_stereo_inputs(left, right, max_disp)
-    volume = _cost_volume(left, right, max_disp, cost, window, cost_options)
+    volume = _cost_volume(left, right, max_disp, cost, window, cost_options, layout)
     if contrast_factor == 1.0:
         return volume, None, None
     return (volume, *contrast_edge_weights(left, contrast_threshold, contrast_factor))
@@ -130,8 +133,9 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
     message memory, and in ``make bench`` about 1.5x faster; every real pair's bad-2 within 0.1 of ``"float"``,
     see :func:`stereonet.aggregate.bp.belief_propagation`); ``"float"`` keeps the cost's dtype throughout.
     """
+    # the volume in image rows of D runs of W costs: the memory order bp's kernels read (no transposing pass)
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
-                                  contrast_factor)
+                                  contrast_factor, layout="hdw")
     with inputs_checked(volume):  # built here from checked images: no second pass over it
         res = belief_propagation(volume, smoothness, truncation, iterations, levels, wr, wd, precision=precision)
     disp, valid, occlusion = _occlusion_filled(res.beliefs, res.disparity, subpixel)

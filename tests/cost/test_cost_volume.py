@@ -161,3 +161,13 @@ def test_numba_backend_equals_torch(cost, kwargs):
     torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-5 * max(1.0, float(ref.abs().max())))
     auto = build_cost_volume(left, right, 7, cost=cost, window=5, **kwargs)
     assert not auto.is_contiguous()  # auto picks the numba (B, H, W, D) layout for float32 CPU input
+    rows = build_cost_volume(left, right, 7, cost=cost, window=5, backend="numba", layout="hdw", **kwargs)
+    assert rows.permute(0, 2, 1, 3).is_contiguous()  # image rows of D runs of W costs
+    assert torch.equal(rows, fast)  # the same values in another memory order
+
+
+def test_unknown_layout_raises():
+    left, right = _plane(2)
+    for backend in ("torch", "numba"):
+        with pytest.raises(StereoInputError, match="layout"):
+            build_cost_volume(left, right, 8, cost="census_ad", layout="dhw", backend=backend)
