@@ -232,11 +232,15 @@ def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window
 def run_block_engine(mode: int, args: tuple, n_disp: int, method: int = 0, ratio: float = 0.0,
                      lr_tol: float = -1.0) -> tuple:
     """Call :func:`stereonet.kernels.block.block_cost_rows` with :func:`numba_engine_args` ``args``."""
-    from stereonet.kernels.block import block_cost_rows
+    from stereonet.kernels.block import MODE_VOLUME, MODE_VOLUME_ROWS, block_cost_rows
 
     kind, li, ri, cl, cr, box, post, post_window, lam_c, lam_a, mu_l, isd_l, mu_r, isd_r = args
+    _, h, w = li.shape
+    # the volume is allocated here, by numpy (large buffers get transparent huge pages: far fewer page faults)
+    shape = {MODE_VOLUME: (h, w, n_disp), MODE_VOLUME_ROWS: (h, n_disp, w)}.get(mode, (1, 1, 1))
+    vol = np.empty(shape, np.float32)
     return block_cost_rows(mode, kind, li, ri, cl, cr, n_disp, box, post, post_window, lam_c, lam_a,
-                           mu_l, isd_l, mu_r, isd_r, method, float(ratio), float(lr_tol))
+                           mu_l, isd_l, mu_r, isd_r, method, float(ratio), float(lr_tol), vol)
 
 
 def out_of_image_cost(row_maxima: list[np.ndarray]) -> np.float32:

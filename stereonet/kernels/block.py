@@ -413,7 +413,7 @@ def box_mean_planes(img, window):
 
 @numba.njit(parallel=True, cache=True, fastmath=False)
 def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window, lam_c, lam_a,
-                    mu_l, isd_l, mu_r, isd_r, method, ratio, lr_tol):
+                    mu_l, isd_l, mu_r, isd_r, method, ratio, lr_tol, vol):
     """The engine (see the module doc). Returns
     ``(vol, row_max, disp, min_cost, unique, disp_right, lr_ok, strip)``; ``vol`` (H, W, D) for ``mode=0``,
     (H, D, W) for ``mode=2`` (else (1, 1, 1)), the selection arrays (H, W) only for ``mode=1`` (else (1, 1)).
@@ -427,6 +427,9 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
             ``isd = 1/sqrt(variance)`` (0 below the variance floor) (H, W) float32 maps, or a multi/shiftable
             window of size post_window).
         method, ratio, lr_tol: selection as :func:`stereonet.kernels.select.select_hwd`.
+        vol: the output volume, float32 (H, W, D) for ``mode=0``, (H, D, W) for ``mode=2``, any (1, 1, 1) array
+            for ``mode=1`` (allocated by the caller: numpy gives large buffers transparent huge pages, so the
+            volume's first touch costs a few hundred page faults instead of one per 4 KiB), returned as ``vol``.
     """
     C, H, W = L.shape
     D = n_disp
@@ -437,7 +440,6 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
     sel = mode == MODE_SELECT
     hv, wv = (H, W) if sel else (1, 1)
     rows_out = mode == MODE_VOLUME_ROWS
-    vol = np.empty((1, 1, 1) if sel else ((H, D, W) if rows_out else (H, W, D)), np.float32)
     disp = np.empty((hv, wv), np.float32)
     min_cost = np.empty((hv, wv), np.float32)
     unique = np.ones((hv, wv), np.bool_)
