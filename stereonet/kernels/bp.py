@@ -25,9 +25,10 @@ ROWS_PER_STEP = 1
 """Rows per block of :func:`bp_level`'s wavefront (its default ``rows_per_step``)."""
 
 
-def _narrow(value, like):  # pragma: no cover - replaced by the overload below inside compiled code
-    """``value`` in the dtype of the array ``like`` (compiled code only, see the overload)."""
-    raise NotImplementedError
+def _narrow(value, like):
+    """``value`` in the dtype of the array ``like`` (in compiled code the overload below, which leaves floats as
+    they are: a float value of a float array's dtype is unchanged by the cast)."""
+    return like.dtype.type(value)
 
 
 @overload(_narrow, inline="always")
@@ -124,8 +125,8 @@ def bp_level(cost, start, final, rings, slopes, iterations, rows_per_step=ROWS_P
     """Run ``iterations`` synchronous min-sum updates from the messages in ``start``; the result lands in ``final``.
 
     cost ``(B, H, D, W)`` row-major, C-contiguous; ``start`` the incoming messages ``(B, H, 4, D, W)``
-    [from left, from right, from up, from down] (a row's four slots side by side) (zero in the border slots that receive no message); ``final``
-    the same shape, and with ``iterations >= 2`` it may be ``start`` itself (then updated in place; with one
+    [from left, from right, from up, from down], a row's four slots side by side, zero in the border slots that
+    receive no message; ``final`` the same shape, and with ``iterations >= 2`` it may be ``start`` itself (then updated in place; with one
     iteration it must be another buffer); ``rings`` scratch of :func:`ring_shape` (any content); ``slopes (B, 8,
     H, W)`` = λ·w to the right, left, down, up neighbour, then the same four times the truncation ``T``.
 
