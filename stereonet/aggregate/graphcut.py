@@ -12,7 +12,8 @@ never increases (a guard against float rounding; in exact arithmetic it cannot i
 
 Complexity: ``cycles · D`` max-flow problems on a grid graph of ``H·W`` nodes and ``2·H·W`` edges, each
 near-linear in practice for BK's algorithm on such grids (worst case O(E·V²·|C|)); each move's capacities come
-from one compiled pass (:func:`stereonet.kernels.graphcut.expansion_terms`). Pass ``init`` (e.g. the WTA disparity) to start close to the optimum.
+from one compiled pass (:func:`stereonet.kernels.graphcut.expansion_terms`). Pass ``init`` (e.g. the WTA
+disparity) to start close to the optimum.
 """
 
 from __future__ import annotations
