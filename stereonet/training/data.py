@@ -296,8 +296,11 @@ def gt_nonoccluded(disparity: torch.Tensor, disparity_right: torch.Tensor, tol: 
 
 
 def _training_fields(item: dict) -> dict:
-    """The fields a training batch needs, with ``nonoccluded`` (bool (1, H, W)) for the Siamese loss."""
+    """The fields a training batch needs, with ``nonoccluded`` (bool (1, H, W)) for the Siamese loss and the
+    pair's ``max_disp`` (the range it was rendered in, what a user passes at inference) where the item has one."""
     out = {k: item[k] for k in ("left", "right", "disparity", "valid")}
+    if "max_disp" in item:
+        out["max_disp"] = int(item["max_disp"])
     if "disparity_right" in item:
         out["nonoccluded"] = item["valid"] & gt_nonoccluded(item["disparity"], item["disparity_right"])
     elif "occlusion" in item:

@@ -16,6 +16,7 @@ from stereonet.training.callbacks import AtomicCheckpointIO
 from stereonet.training.curriculum import difficulty_at
 from stereonet.training.data import RandomShiftStereo, collate_pairs, gt_nonoccluded, swap_flip
 from stereonet.training.losses import (
+    aggregated_cost_hinge,
     bimodal_laplacian_nll,
     coarse_to_fine_weights,
     disparity_errors,
@@ -196,6 +197,62 @@ def test_siamese_module_teacher_stays_out_of_the_checkpoint(tmp_path):
     assert with_teacher > plain.compute(batch)[0]  # same sampled pairs (same seed), plus the squared term
     with pytest.raises(ValueError, match="distill"):
         SiameseModule(distill=-1.0)
+
+
+def test_training_batches_carry_each_pairs_own_range():
+    """RefineModule runs its base matchers with the range a pair was rendered in (what a user passes at inference),
+    so the batch must carry it; before, training fell back to the module's max_disp for every pair."""
+    from stereonet.training.data import _training_fields
+
+    items = [_training_fields(RandomShiftStereo(1, seed=0, max_disp=m)[0]) for m in (5, 12)]
+    assert [it["max_disp"] for it in items] == [5, 12]
+    assert collate_pairs(items)["max_disp"] == [5, 12]
+    assert "max_disp" not in _training_fields({k: v for k, v in RandomShiftStereo(1)[0].items() if k != "max_disp"})
+
+
+def test_aggregated_cost_hinge_scores_the_winner_against_far_disparities():
+    cost = torch.zeros(1, 8, 1, 3)
+    cost[0, :, 0, 0] = torch.tensor([9.0, 9, 9, 1, 2, 9, 9, 9])  # truth 3.4: minimum within 1 px, far ones 9
+    cost[0, :, 0, 1] = torch.tensor([9.0, 9, 9, 5, 9, 9, 9, 4])  # truth 3.0: a far disparity (7) wins
+    cost[0, :, 0, 2] = torch.tensor([0.0, 9, 9, 9, 9, 9, 9, 9])  # truth 9.0: outside the volume, left out
+    target = torch.tensor([3.4, 3.0, 9.0]).view(1, 1, 1, 3)
+    valid = torch.ones(1, 1, 1, 3, dtype=torch.bool)
+    # pixel 0: relu(4 + 1 - 9) = 0; pixel 1: relu(4 + 5 - 4) / 4 = 1.25; pixel 2 unused
+    assert aggregated_cost_hinge(cost, target, valid, margin=4.0).item() == pytest.approx(1.25 / 2)
+    valid[0, 0, 0, 1] = False
+    assert aggregated_cost_hinge(cost, target, valid, margin=4.0).item() == 0.0
+    # 2.0 px from the truth (bin 5 for truth 3.0) counts as far: it must lose by the margin too
+    near_miss = torch.full((1, 8, 1, 1), 9.0)
+    near_miss[0, 3, 0, 0], near_miss[0, 5, 0, 0] = 1.0, 2.0
+    one = aggregated_cost_hinge(near_miss, torch.full((1, 1, 1, 1), 3.0), torch.ones(1, 1, 1, 1, dtype=torch.bool), 4.0)
+    assert one.item() == pytest.approx(3.0 / 4)
+    with pytest.raises(ValueError, match="margin"):
+        aggregated_cost_hinge(cost, target, valid, margin=0.0)
+
+
+def test_siamese_module_sgm_loss_starts_from_weights_and_trains_through_sgm(tmp_path, one_thread):
+    from stereonet.models.weights import save_weights
+
+    start = SiameseNet(channels=4, layers=2)
+    path = tmp_path / "start.pt"
+    save_weights(path, "siamese", {"channels": 4, "layers": 2}, start)
+    module = SiameseModule(channels=4, layers=2, num_samples=32, max_disp=8, init_weights=str(path), sgm_loss=1.0)
+    assert all(torch.equal(a, b) for a, b in zip(module.model.state_dict().values(), start.state_dict().values()))
+    module.train()
+    batch = _one_batch()
+    loss, _, extra = module.compute(batch)
+    assert "sgm_hinge" in extra and torch.isfinite(loss)
+    loss.backward()
+    grads = [p.grad for p in module.model.parameters()]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads)
+    # the aggregated term reaches the tower: its gradient alone is not zero
+    module.zero_grad()
+    module._sgm_term(batch, batch.get("nonoccluded", batch["valid"])).backward()
+    assert sum(float(p.grad.abs().sum()) for p in module.model.parameters()) > 0
+    with pytest.raises(ValueError, match="init_weights"):
+        SiameseModule(channels=8, layers=2, init_weights=str(path))
+    with pytest.raises(ValueError, match="sgm_margin"):
+        SiameseModule(sgm_loss=1.0, sgm_margin=0.0)
 
 
 def test_refine_module_starts_at_sgm_and_learns(one_thread):
