@@ -114,13 +114,13 @@ class StereoModule(L.LightningModule):
         bs = batch["left"].shape[0]
         on_step = stage == "train"
         self.log(f"{stage}/loss", loss.detach(), prog_bar=True, batch_size=bs, on_step=on_step, on_epoch=not on_step)
+        for k, v in extra.items():
+            self.log(f"{stage}/{k}", v, batch_size=bs, on_step=on_step, on_epoch=not on_step)
         if pred is None:  # a model that predicts densely only outside training (Siamese)
             return loss
         errors = disparity_errors(pred.detach(), batch["disparity"], batch["valid"])
         self.log(f"{stage}/epe", errors["epe"], prog_bar=True, batch_size=bs, on_step=on_step, on_epoch=not on_step)
         self.log(f"{stage}/bad2", errors["bad2"], batch_size=bs, on_step=on_step, on_epoch=not on_step)
-        for k, v in extra.items():
-            self.log(f"{stage}/{k}", v, batch_size=bs, on_step=on_step, on_epoch=not on_step)
         if stage == "val" and not getattr(self, "_images_logged", True):
             self._images_logged = True
             self._log_images(batch, pred)
