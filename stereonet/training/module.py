@@ -395,6 +395,9 @@ class RefineModule(StereoModule):
         target: ``select`` only: "any", "keep" or "decisive" (see above).
         bases: the matchers whose maps the network reads (RefineNet's ``bases``; each runs on every training pair,
             ``siamese-census-sgm`` with the shipped Siamese weights, frozen).
+        pair_ranges: run the base matchers with each pair's own ``max_disp`` where the batch carries it (True) or
+            with ``max_disp`` for every pair (False: how the seventeenth session's ``refine.pt`` was trained, when
+            training batches did not carry the field).
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
     """
 
@@ -403,7 +406,7 @@ class RefineModule(StereoModule):
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 8, 1), max_disp: int = 64,
                  mode: str = "residual", radii: tuple[int, ...] = (1, 3, 9, 27), tolerance: float = 1.0,
                  target: str = "any", bases: tuple[str, ...] = ("sgm",), lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000, evidence: str = "pixel") -> None:
+                 schedule_steps: int = 5000, evidence: str = "pixel", pair_ranges: bool = True) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if not tolerance > 0:
             raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
@@ -429,7 +432,8 @@ class RefineModule(StereoModule):
 
         left, right = batch["left"], batch["right"]
         b, w = left.shape[0], left.shape[-1]
-        ranges = batch.get("max_disp") or [self.hparams.max_disp] * b  # each pair's own range, as eval.py gives
+        own = batch.get("max_disp") if self.hparams.get("pair_ranges", True) else None
+        ranges = own or [self.hparams.max_disp] * b  # each pair's own range, as eval.py gives
         ranges = [max(1, min(int(r), w - 1)) for r in ranges]
         with torch.no_grad():
             parts = [refine_bases(self.model.bases, left[i:i + 1], right[i:i + 1], ranges[i]) for i in range(b)]

@@ -210,6 +210,25 @@ def test_training_batches_carry_each_pairs_own_range():
     assert "max_disp" not in _training_fields({k: v for k, v in RandomShiftStereo(1)[0].items() if k != "max_disp"})
 
 
+def test_refine_module_runs_its_bases_with_each_pairs_range(one_thread):
+    from stereonet.matchers import learned
+
+    batch = collate_pairs([RandomShiftStereo(1, seed=0, max_disp=m)[0] for m in (5, 12)])
+    seen = []
+    real = learned.refine_bases
+
+    def spy(bases, left, right, max_disp, **options):
+        seen.append(max_disp)
+        return real(bases, left, right, max_disp, **options)
+
+    with mock.patch.object(learned, "refine_bases", spy):
+        RefineModule(channels=4, dilations=(1,), max_disp=20).compute(batch)
+        assert seen == [5, 12]
+        seen.clear()
+        RefineModule(channels=4, dilations=(1,), max_disp=20, pair_ranges=False).compute(batch)
+        assert seen == [20, 20]
+
+
 def test_aggregated_cost_hinge_scores_the_winner_against_far_disparities():
     cost = torch.zeros(1, 8, 1, 3)
     cost[0, :, 0, 0] = torch.tensor([9.0, 9, 9, 1, 2, 9, 9, 9])  # truth 3.4: minimum within 1 px, far ones 9
