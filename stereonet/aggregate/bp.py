@@ -219,6 +219,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                         F.avg_pool2d(F.pad(d, (0, d.shape[-1] % 2, 0, d.shape[-2] % 2), mode="replicate"), 2)))
     truncation_eff = min(truncation, float(cost.shape[1]))
     if numba_path:
+        from stereonet.kernels import bp as kernels
         from stereonet.kernels.bp import beliefs_argmin, beliefs_view, pool_sum2, round_rows, upsample2
 
         # the kernels work row-major (B, H, D, W): each grid row is D contiguous runs of W pixels
@@ -248,7 +249,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
         # (each coarse pixel's messages copied to its 2x2 children: the four slots of a row are one (4D, w) block)
         # and is then dropped
         result = None
-        for level in range(levels - 1, -1, -1):
+        for level in range(levels - 1, 0, -1):
             c = costs[level]
             shape = c.shape[:2] + (4,) + c.shape[2:]
             if result is None:
@@ -261,13 +262,26 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                 result = None
             result = _run_level_numba(c, start, slope_arrays[level], iterations)
             del start
-        # the beliefs are written over the finest messages (no new volume) and returned as a strided view of them;
         # fixed point: beliefs back in cost units (1/s is a power of two: exact)
         out_dtype = np.dtype(np.float32) if fixed[0] else costs[0].dtype
+        belief_scale = np.array([1.0 / scale if fixed[0] else 1.0], dtype=out_dtype)
         labels_rows = np.empty((B, H, W), dtype=np.int64)
-        beliefs_argmin(costs[0], result, labels_rows, np.array([1.0 / scale if fixed[0] else 1.0], dtype=out_dtype))
-        beliefs_rows = beliefs_view(result, out_dtype)
-        del result, costs
+        if result is None:  # one level: from zero messages, the beliefs written over the final messages (a view)
+            result = _run_level_numba(costs[0], np.zeros((B, H, 4, D, W), dtype=costs[0].dtype), slope_arrays[0],
+                                      iterations)
+            beliefs_argmin(costs[0], result, labels_rows, belief_scale)
+            beliefs_rows = beliefs_view(result, out_dtype)
+            del result
+        else:  # the finest level in one wavefront from the coarse messages to the beliefs (kernels.bp.bp_finest)
+            coarse = result if result.dtype == costs[0].dtype else _to_fixed(result, scale)
+            del result
+            k = int(kernels.ROWS_PER_STEP)
+            rings = np.empty(kernels.ring_shape(iterations + 1, k, D, W), dtype=costs[0].dtype)
+            beliefs_rows = np.empty((B, H, D, W), dtype=out_dtype)
+            kernels.bp_finest(costs[0], coarse, rings, slope_arrays[0], int(iterations), beliefs_rows, labels_rows,
+                              belief_scale, k)
+            del coarse, rings
+        del costs
         beliefs = torch.from_numpy(beliefs_rows).permute(0, 2, 1, 3).to(cost.device)  # BxDxHxW view
         labels = torch.from_numpy(labels_rows).unsqueeze(1).to(cost.device)
     else:

@@ -219,19 +219,26 @@ def upsample2(coarse, out):  # pragma: no cover - compiled
     ``repeat_interleave(2)`` twice, cropped), in one pass.
     """
     N, height, D, width = out.shape
-    half = width // 2
     for row in prange(N * height):
         n = row // height
         y = row % height
-        for d in range(D):
-            src = coarse[n, y // 2, d]
-            dst = out[n, y, d]
-            for i in range(half):
-                v = src[i]
-                dst[2 * i] = v
-                dst[2 * i + 1] = v
-            if width % 2:
-                dst[width - 1] = src[half]
+        _upsample_row(coarse[n, y // 2], out[n, y])
+
+
+@njit(cache=True, fastmath=False)
+def _upsample_row(src, dst):  # pragma: no cover - compiled
+    """``dst[c, x] = src[c, x // 2]``: one row of :func:`upsample2`, ``(C, w) -> (C, W)``, ``W <= 2w``."""
+    C, W = dst.shape
+    half = W // 2
+    for c in range(C):
+        a = src[c]
+        b = dst[c]
+        for i in range(half):
+            v = a[i]
+            b[2 * i] = v
+            b[2 * i + 1] = v
+        if W % 2:
+            b[W - 1] = a[half]
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -284,6 +291,44 @@ def beliefs_view(messages: np.ndarray, dtype) -> np.ndarray:
     return raw[:, :, :D * W * np.dtype(dtype).itemsize].view(dtype).reshape(B, H, D, W)
 
 
+@njit(cache=True, fastmath=False)
+def _beliefs_row(cost, m, b, y, s, bel, best, lab, dst):  # pragma: no cover - compiled
+    """Row ``(b, y)`` of :func:`beliefs_argmin`: ``bel (D, W) = (cost[b, y] + m[0] + m[1] + m[2] + m[3]) * s`` from
+    the row's incoming messages ``m (4, D, W)``, and its first argmin over d into ``dst (W,)``; ``best``/``lab``
+    ``(2, W)`` ping-pong scratch."""
+    D = bel.shape[0]
+    W = bel.shape[1]
+    for d in range(D):
+        c = cost[b, y, d]
+        a0 = m[0, d]
+        a1 = m[1, d]
+        a2 = m[2, d]
+        a3 = m[3, d]
+        out = bel[d]
+        for x in range(W):
+            out[x] = _narrow(c[x] + a0[x] + a1[x] + a2[x] + a3[x], cost) * s
+        if d == 0:
+            b0 = best[0]
+            l0 = lab[0]
+            for x in range(W):
+                b0[x] = out[x]
+                l0[x] = 0
+        else:
+            old = best[(d - 1) % 2]
+            new = best[d % 2]
+            lab_old = lab[(d - 1) % 2]
+            lab_new = lab[d % 2]
+            for x in range(W):
+                v = out[x]
+                o = old[x]
+                better = v < o
+                new[x] = v if better else o
+                lab_new[x] = d if better else lab_old[x]
+    final = lab[(D - 1) % 2]
+    for x in range(W):
+        dst[x] = final[x]
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def beliefs_argmin(cost, messages, labels, scale):  # pragma: no cover - compiled
     """``beliefs = (cost + m0 + m1 + m2 + m3) * scale`` (summed left to right), written over the messages, and
@@ -304,37 +349,50 @@ def beliefs_argmin(cost, messages, labels, scale):  # pragma: no cover - compile
         y = row % H
         bel = np.empty((D, W), dtype=scale.dtype)
         best = np.empty((2, W), dtype=bel.dtype)
-        lab = np.zeros((2, W), dtype=np.int64)
+        lab = np.empty((2, W), dtype=np.int64)
         m = messages[b, y]
-        for d in range(D):
-            c = cost[b, y, d]
-            a0 = m[0, d]
-            a1 = m[1, d]
-            a2 = m[2, d]
-            a3 = m[3, d]
-            out = bel[d]
-            for x in range(W):
-                out[x] = _narrow(c[x] + a0[x] + a1[x] + a2[x] + a3[x], cost) * s
-            if d == 0:
-                b0 = best[0]
-                for x in range(W):
-                    b0[x] = out[x]
-            else:
-                old = best[(d - 1) % 2]
-                new = best[d % 2]
-                lab_old = lab[(d - 1) % 2]
-                lab_new = lab[d % 2]
-                for x in range(W):
-                    v = out[x]
-                    o = old[x]
-                    better = v < o
-                    new[x] = v if better else o
-                    lab_new[x] = d if better else lab_old[x]
-        final = lab[(D - 1) % 2]
-        dst = labels[b, y]
-        for x in range(W):
-            dst[x] = final[x]
+        _beliefs_row(cost, m, b, y, s, bel, best, lab, labels[b, y])
         flat = bel.reshape(D * W)
         into = m.reshape(4 * D * W).view(bel.dtype)
         for i in range(D * W):
             into[i] = flat[i]
+
+
+@njit(parallel=True, cache=True, fastmath=False)
+def bp_finest(cost, coarse, rings, slopes, iterations, beliefs, labels, scale, rows_per_step=ROWS_PER_STEP):  # pragma: no cover
+    """The finest level of the pyramid without its full message sets: :func:`bp_level` started from the coarse
+    level's messages, then :func:`beliefs_argmin`, in one wavefront.
+
+    Iteration 0 reads row ``y``'s incoming messages from the coarse level's row ``y // 2`` (``coarse (B, h, 4, D,
+    w)``), upsampled into a scratch row exactly as :func:`upsample2` copies each coarse pixel to its 2x2 children;
+    every iteration, the last one too, writes into a ring (``rings`` of :func:`ring_shape` with ``iterations + 1``);
+    and one step behind the last iteration's lag a last stage computes each row's beliefs ``(cost + four messages) *
+    scale[0]`` into ``beliefs (B, H, D, W)`` (``scale``'s dtype) and their first argmin into ``labels (B, H, W)``
+    int64. The beliefs of row ``y`` need the last iteration's writes from rows ``y - 1 .. y + 1``, the same
+    dependency as an iteration's on the one before, so the same two-block lag keeps it exact and the ring bound
+    holds. The same numbers as upsampling into a full message set, :func:`bp_level` and :func:`beliefs_argmin`;
+    what it saves is the two full message sets' traffic (the upsampled start and the final set).
+    """
+    B, H, D, W = cost.shape
+    K = max(1, rows_per_step)
+    R = rings.shape[1]
+    n_blocks = (H + K - 1) // K
+    J = iterations
+    s = scale[0]
+    for b in range(B):
+        for t in range(n_blocks + 2 * J):
+            for j in prange(J + 1):
+                blk = t - 2 * j
+                if 0 <= blk < n_blocks:
+                    for y in range(blk * K, min(blk * K + K, H)):
+                        if j == J:
+                            bel = beliefs[b, y]
+                            best = np.empty((2, W), dtype=bel.dtype)
+                            lab = np.empty((2, W), dtype=np.int64)
+                            _beliefs_row(cost, rings[J - 1][y % R], b, y, s, bel, best, lab, labels[b, y])
+                        elif j == 0:
+                            src = np.empty((1, 4, D, W), dtype=cost.dtype)
+                            _upsample_row(coarse[b, y // 2].reshape(4 * D, coarse.shape[4]), src[0].reshape(4 * D, W))
+                            _update_row(cost, src, 1, rings[0], R, slopes, b, y)
+                        else:
+                            _update_row(cost, rings[j - 1], R, rings[j], R, slopes, b, y)

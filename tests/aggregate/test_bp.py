@@ -155,6 +155,47 @@ def test_wavefront_blocks_of_rows_give_the_same_bits(rows_per_step):
 
 
 
+@pytest.mark.parametrize("dtype,iterations,rows_per_step", [("float32", 4, 1), ("int16", 3, 2), ("float32", 1, 3),
+                                                              ("int16", 5, 64)])
+def test_finest_level_in_one_wavefront_equals_upsample_level_and_beliefs(dtype, iterations, rows_per_step):
+    """bp_finest (coarse messages -> iterations -> beliefs and labels, no full message set) gives the bits of
+    upsample2 + bp_level + beliefs_argmin, on odd sizes (H = 37, W = 29: the last coarse pixel has one child), for
+    float32 and int16 fixed point, one iteration (the first is the last) and blocks of several rows."""
+    import numpy as np
+
+    from stereonet.kernels.bp import beliefs_argmin, beliefs_view, bp_finest, bp_level, ring_shape, upsample2
+
+    rng = np.random.default_rng(7)
+    B, H, D, W, h, w = 2, 37, 9, 29, 19, 15
+    scale_dtype = np.float32
+    if dtype == "int16":
+        cost = rng.integers(0, 400, (B, H, D, W)).astype(np.int16)
+        s = rng.integers(0, 50, (B, 4, H, W)).astype(np.int16)
+        slopes = np.ascontiguousarray(np.concatenate([s, s * np.int16(3)], 1))
+        coarse = rng.integers(0, 300, (B, h, 4, D, w)).astype(np.int16)
+        scale = np.array([1 / 256], scale_dtype)
+    else:
+        cost = (rng.random((B, H, D, W)) * 4).astype(np.float32)
+        s = (rng.random((B, 4, H, W)) * 0.8).astype(np.float32)
+        slopes = np.ascontiguousarray(np.concatenate([s, s * np.float32(3.0)], 1))
+        coarse = (rng.random((B, h, 4, D, w)) * 2).astype(np.float32)
+        scale = np.array([1.0], scale_dtype)
+    start = np.empty((B, H, 4, D, W), cost.dtype)
+    upsample2(coarse.reshape(B, h, -1, w), start.reshape(B, H, -1, W))
+    final = start if iterations >= 2 else np.empty_like(start)
+    bp_level(cost, start, final, np.empty(ring_shape(iterations, 1, D, W), cost.dtype), slopes, iterations, 1)
+    labels_ref = np.empty((B, H, W), np.int64)
+    beliefs_argmin(cost, final, labels_ref, scale)
+    beliefs_ref = beliefs_view(final, scale_dtype)
+    fill = np.iinfo(np.int16).max if dtype == "int16" else np.nan  # any ring content: every slot read is written first
+    rings = np.full(ring_shape(iterations + 1, rows_per_step, D, W), fill, cost.dtype)
+    beliefs = np.full((B, H, D, W), np.nan, scale_dtype)
+    labels = np.full((B, H, W), -1, np.int64)
+    bp_finest(cost, coarse, rings, slopes, iterations, beliefs, labels, scale, rows_per_step)
+    assert np.isfinite(beliefs).all() and (labels >= 0).all()
+    assert np.array_equal(beliefs, beliefs_ref) and np.array_equal(labels, labels_ref)
+
+
 def test_one_iteration_writes_every_slot_of_a_fresh_final_set():
     """With one iteration the result goes to another buffer: whatever it held (NaN here), every slot comes back
     written, the border slots no neighbour sends to as zeros."""
