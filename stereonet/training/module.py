@@ -284,7 +284,7 @@ class SiameseModule(StereoModule):
             its penalties (the differentiable torch reference, :func:`~stereonet.aggregate.sgm.sgm_aggregate_torch`),
             and :func:`~stereonet.training.losses.aggregated_cost_hinge` asks the aggregated cost within 1 px of the
             truth to undercut every disparity >= 2 px away by ``sgm_margin`` (Hamming bits of the aggregated cost)
-            on the non-occluded pixels. About 2.5 s per batch of 4 at 96x192 on 2 threads.
+            on the non-occluded pixels. About 3.5 s per batch of 4 at 96x192 on 2 threads (measured alone).
         sgm_margin, learned_weight: see ``sgm_loss``.
     """
 
