@@ -17,10 +17,12 @@ IJCV 2006:
 * ``precision="int16"`` (the ``bp`` matcher's default): the finest levels in 16-bit fixed point, costs and
   slopes rounded to a grid ``1/s`` (:func:`fixed_point_plan`), on which min-sum is exact integer arithmetic.
 
-Cost: O(iterations · 4 · B·D·H·W) time per level (the coarse levels add a third), about 7 volumes of
-``B·D·H·W`` of memory at the finest level (cost, its row-major copy, 4 messages updated in place with the
-iterations in between in small rings of rows, beliefs); in fixed point the row-major copy and the messages
-take half (about 5 volumes).
+Cost: O(iterations · 4 · B·D·H·W) time per level (the coarse levels add a third). With more than one level the
+finest one never holds a full message set (:func:`stereonet.kernels.bp.bp_finest`: its first iteration reads the
+coarse level's messages row by row, every iteration writes into small rings of rows, the beliefs are computed in the
+same wavefront), so its memory is about 3 volumes of ``B·D·H·W`` (cost, its row-major copy, beliefs; the row-major
+copy half in fixed point) plus the next coarser level's messages (one volume); a single level keeps its 4 messages
+(updated in place) and writes the beliefs over them.
 """
 
 from __future__ import annotations
