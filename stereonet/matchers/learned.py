@@ -277,6 +277,12 @@ def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, 
 LEARNED_WEIGHT = 0.9
 
 
+def census_mix_weights(learned_weight: float) -> tuple[float, float]:
+    """``(w_census, w_learned)`` of siamese-census-sgm's cost ``w_census * census + w_learned * (1 - cos)``:
+    ``(1 - a, 24 a)``, the Siamese cost (0..2) brought to the census's 0..48 bits."""
+    return 1.0 - learned_weight, 24.0 * learned_weight
+
+
 @register("siamese-census-sgm", kind="learned", needs_weights=True,
           description="sgm on census 7x7 + the Siamese learned cost (weights/siamese.pt), sgm's back end")
 def siamese_census_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
@@ -292,7 +298,7 @@ def siamese_census_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp
     if not 0.0 <= learned_weight <= 1.0:
         raise StereoInputError(f"learned_weight: expected a value in [0, 1], got {learned_weight!r}")
     learned = _siamese_cost(left, right, max_disp, checkpoint, backend, onnx_model, precision).clamp_(max=2.0)  # BxDxHxW, ours
-    return sgm(left, right, max_disp, extra_cost=(1.0 - learned_weight, 24.0 * learned_weight, learned), **options)
+    return sgm(left, right, max_disp, extra_cost=(*census_mix_weights(learned_weight), learned), **options)
 
 
 def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_options):

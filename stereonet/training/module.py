@@ -349,6 +349,7 @@ class SiameseModule(StereoModule):
         # matchers sit above models; only training reaches up
         from stereonet.aggregate.sgm import CENSUS_PENALTY_STEP, sgm_aggregate_torch
         from stereonet.cost.volume import build_cost_volume
+        from stereonet.matchers.learned import census_mix_weights
         from stereonet.matchers.local import SGM_DEFAULTS
 
         hp = self.hparams
@@ -360,7 +361,8 @@ class SiameseModule(StereoModule):
         with torch.no_grad():
             census = build_cost_volume(left, right, max_disp, cost="census", window=1,
                                        census_window=SGM_DEFAULTS["census_window"]).contiguous()
-        mixed = (1.0 - hp.learned_weight) * census + 24.0 * hp.learned_weight * learned  # as siamese-census-sgm
+        w_census, w_learned = census_mix_weights(hp.learned_weight)  # as siamese-census-sgm mixes them
+        mixed = w_census * census + w_learned * learned
         agg = sgm_aggregate_torch(mixed, SGM_DEFAULTS["P1"], SGM_DEFAULTS["P2"], paths=SGM_DEFAULTS["paths"],
                                   image=left, p2_alpha=SGM_DEFAULTS["p2_alpha"], penalty_step=CENSUS_PENALTY_STEP)
         return aggregated_cost_hinge(agg, batch["disparity"], valid, hp.sgm_margin)
