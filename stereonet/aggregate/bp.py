@@ -158,6 +158,12 @@ def _to_fixed(x: np.ndarray, scale: int) -> np.ndarray:
     return out
 
 
+def _in_dtype(messages: np.ndarray, dtype, scale: int) -> np.ndarray:
+    """A coarser level's messages as the next level needs them: as they are, or rounded to fixed point (a float
+    level above an int16 one)."""
+    return messages if messages.dtype == dtype else _to_fixed(messages, scale)
+
+
 def _pool_sum(x: torch.Tensor) -> torch.Tensor:
     """Sum over 2x2 blocks (odd sizes padded by replication): (B, C, H, W) -> (B, C, ceil(H/2), ceil(W/2))."""
     h, w = x.shape[-2:]
@@ -258,7 +264,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                 start = np.zeros(shape, dtype=c.dtype)
             else:
                 start = np.empty(shape, dtype=c.dtype)
-                src = result if result.dtype == c.dtype else _to_fixed(result, scale)
+                src = _in_dtype(result, c.dtype, scale)
                 upsample2(src.reshape(src.shape[:2] + (-1, src.shape[-1])), start.reshape(shape[:2] + (-1, shape[-1])))
                 del src
                 result = None
@@ -275,7 +281,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             beliefs_rows = beliefs_view(result, out_dtype)
             del result
         else:  # the finest level in one wavefront from the coarse messages to the beliefs (kernels.bp.bp_finest)
-            coarse = result if result.dtype == costs[0].dtype else _to_fixed(result, scale)
+            coarse = _in_dtype(result, costs[0].dtype, scale)
             del result
             k = int(kernels.ROWS_PER_STEP)
             rings = np.empty(kernels.ring_shape(iterations + 1, k, D, W), dtype=costs[0].dtype)
