@@ -177,7 +177,8 @@ def counterpart_table(rows: Sequence[dict], groups: Sequence[str]) -> list[str]:
         return []
     head = "| method | against | " + " | ".join(f"{g}: median × | {g}: worst pair ×" for g in groups) + " |"
     lines = ["## Time against the OpenCV counterpart", "",
-             "CPU time of each call over its OpenCV counterpart's on the same pair in the same run: "
+             "Wall-clock time of each call (the run's torch threads, see the header) over its OpenCV counterpart's on the "
+             "same pair in the same run: "
              f"`{BLOCK_REFERENCE}` for the block matchers (`bm-*`), `{REFERENCE}` for the others; the median over "
              "pairs and the worst pair.", "", head, "|" + "---|" * (head.count("|") - 1)]
     by = {(r["method"], r["group"]): r for r in rows}
