@@ -23,6 +23,13 @@ for m, row in table.items():
     au = [row[k]["ause"] for k in pairs if "ause" in row[k]]
     print(f"| {m} | " + " | ".join(f"{x:.1f}" for x in b) + f" | {statistics.median(b):.1f} | "
           f"{statistics.median(see):.2f} | " + (f"{statistics.median(au):.2f}" if au else "-") + " |")
+print("\nSEE per pair (px):")
+print("| method | " + " | ".join(pairs) + " | median SEE | mean SEE |")
+for m, row in table.items():
+    see = [row[k].get("see", float("nan")) for k in pairs]
+    finite = [x for x in see if x == x]
+    print(f"| {m} | " + " | ".join(f"{x:.2f}" for x in see) + f" | {statistics.median(finite):.2f} | "
+          f"{statistics.fmean(finite):.2f} |")
 out = sys.argv[3] if len(sys.argv) > 3 else "/tmp/exp/pairs.json"
 os.makedirs(os.path.dirname(out) or ".", exist_ok=True)
 json.dump({m: row for m, row in table.items()}, open(out, "w"), indent=1)
