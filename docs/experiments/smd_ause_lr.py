@@ -3,8 +3,8 @@ a classical confidence computed for the same map would?
 
 For each real pair: SMD's disparity, ranked (1) by its own uncertainty (the chosen mode's Laplacian scale, what
 eval.py's AUSE column uses) and (2) by the left-right disagreement of the same network, |d_L(x) - d_R(round(x -
-d_L(x)))| with d_R from SMD run on the mirrored, swapped pair (the left-right rule of
-stereonet.select.lr_check; outside the right image = least trusted). ``dispnet`` (no uncertainty) gets (2) as a
+d_L(x)))| with d_R from SMD run on the mirrored, swapped pair (stereonet.select.left_right_difference, the
+quantity the left-right check thresholds; outside the right image = least trusted). ``dispnet`` (no uncertainty) gets (2) as a
 reference. Bad-2 sparsification AUSE (stereonet.metrics.sparsification_ause), all GT pixels.
 
     python docs/experiments/smd_ause_lr.py > docs/experiments/smd_ause_lr.txt
@@ -15,16 +15,7 @@ import torch
 
 from stereonet import matchers, metrics
 from stereonet.data import load_dataset
-
-
-def lr_disagreement(disp_left: torch.Tensor, disp_right: torch.Tensor) -> torch.Tensor:
-    """|d_L - d_R(round(x - d_L))|, +inf where the match falls outside the right image."""
-    w = disp_left.shape[-1]
-    x = torch.arange(w, dtype=disp_left.dtype).view(1, 1, 1, -1)
-    xr = torch.round(x - disp_left)
-    inside = (xr >= 0) & (xr <= w - 1)
-    err = (disp_left - disp_right.gather(3, xr.clamp(0, w - 1).long())).abs()
-    return torch.where(inside, err, torch.full_like(err, float("inf")))
+from stereonet.select import left_right_difference
 
 
 def main() -> None:
@@ -40,7 +31,7 @@ def main() -> None:
             out = matchers.match(method, left, right, max_disp)
             mirrored = matchers.match(method, right.flip(-1), left.flip(-1), max_disp)
             disp_right = mirrored.disparity.flip(-1)
-            lr = lr_disagreement(out.disparity, disp_right)
+            lr = left_right_difference(out.disparity, disp_right)
             r = rows.setdefault(method, {})
             r[name] = {"bad2": metrics.bad_pixel_rate(out.disparity, gt, valid, 2.0),
                        "lr": metrics.sparsification_ause(out.disparity, gt, valid, uncertainty=lr)}

@@ -57,6 +57,37 @@ def wta_right(cost: torch.Tensor) -> torch.Tensor:
     return arg.unsqueeze(1)
 
 
+def left_right_difference(disp_left: torch.Tensor, disp_right: torch.Tensor) -> torch.Tensor:
+    """How far the two views disagree at each left pixel: ``|dL - disp_right(xr)|`` with ``xr = round(x - dL)``,
+    ``+inf`` where ``xr`` falls outside the right image or ``dL`` is NaN (NaN where ``disp_right(xr)`` is).
+
+    The quantity :func:`left_right_check` thresholds; on its own a classical confidence for any matcher that can
+    run with either view as the reference (lower = more trustworthy).
+
+    Args:
+        disp_left: :math:`(B, 1, H, W)` left-reference disparity.
+        disp_right: :math:`(B, 1, H, W)` right-reference disparity (``x_left = x_right + d``).
+
+    Returns:
+        :math:`(B, 1, H, W)` in the dtype of ``disp_left``.
+    """
+    dims = check_shape(disp_left, ["B", "1", "H", "W"], "disp_left")
+    check_shape(disp_right, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "disp_right")
+    diff, inside, _ = _difference(disp_left, disp_right)
+    return torch.where(inside, diff, torch.full_like(diff, float("inf")))
+
+
+def _difference(disp_left: torch.Tensor, disp_right: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Of checked maps: ``|dL - disp_right(xr)|`` (any value where ``xr`` is outside), whether ``xr`` is inside the
+    right image, and ``xr`` clamped into it (the gather index)."""
+    w = disp_left.shape[-1]
+    x = torch.arange(w, device=disp_left.device, dtype=disp_left.dtype).view(1, 1, 1, -1)
+    xr = torch.round(x - disp_left)
+    inside = (xr >= 0) & (xr <= w - 1)
+    idx = torch.nan_to_num(xr, nan=0.0).clamp(0, w - 1).long()  # a NaN disparity matches nothing (inside False)
+    return (disp_left - disp_right.gather(3, idx)).abs(), inside, idx
+
+
 def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: float = 1.0,
                      valid_right: torch.Tensor | None = None) -> torch.Tensor:
     """The one left-right consistency rule (matchers, and ground-truth occlusion in the dataset readers and
@@ -79,12 +110,8 @@ def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: flo
     check_shape(disp_right, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "disp_right")
     if tol < 0:
         raise StereoInputError(f"tol: expected a non-negative tolerance, got {tol}")
-    w = dims["W"]
-    x = torch.arange(w, device=disp_left.device, dtype=disp_left.dtype).view(1, 1, 1, -1)
-    xr = torch.round(x - disp_left)
-    inside = (xr >= 0) & (xr <= w - 1)
-    idx = xr.clamp(0, w - 1).long()
-    consistent = inside & ((disp_left - disp_right.gather(3, idx)).abs() <= tol)
+    diff, inside, idx = _difference(disp_left, disp_right)
+    consistent = inside & (diff <= tol)
     if valid_right is not None:
         check_shape(valid_right, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "valid_right")
         consistent &= valid_right.gather(3, idx)

@@ -9,7 +9,7 @@ from stereonet.checks import StereoInputError
 from stereonet.cost import build_cost_volume
 from stereonet.select.fill import fill_occlusions
 from stereonet.select.filters import median_filter, speckle_filter
-from stereonet.select.lr_check import left_right_check, right_cost_volume, wta_right
+from stereonet.select.lr_check import left_right_check, left_right_difference, right_cost_volume, wta_right
 from stereonet.select.subpixel import subpixel_refine
 from stereonet.select.wta import uniqueness_mask, wta
 
@@ -158,3 +158,17 @@ def test_wta_right_numba_equals_loop():
     fast = wta_right(vol)
     ref = wta(right_cost_volume(vol.double()))[0].float()
     torch.testing.assert_close(fast, ref)
+
+
+def test_left_right_difference_is_what_the_check_thresholds():
+    # one row of 6: left disparities and right disparities hand-made, matches xr = round(x - dL)
+    dl = torch.tensor([[[[0.0, 1.0, 1.4, 5.0, 2.0, float("nan")]]]])
+    dr = torch.tensor([[[[0.5, 3.0, 1.0, 2.0, 7.0, 0.0]]]])
+    diff = left_right_difference(dl, dr)
+    # x=0: xr=0 |0-0.5|; x=1: xr=0 |1-0.5|; x=2: xr=1 |1.4-3|; x=3: xr=-2 outside; x=4: xr=2 |2-1|; x=5: NaN, no match
+    inf = float("inf")
+    assert torch.allclose(diff[0, 0, 0], torch.tensor([0.5, 0.5, 1.6, inf, 1.0, inf]))
+    for tol in (0.0, 0.5, 1.0, 2.0, float("inf")):
+        assert torch.equal(left_right_check(dl, dr, tol=tol), (diff <= tol) & torch.isfinite(diff))
+    with pytest.raises(StereoInputError, match="disp_right"):
+        left_right_difference(dl, torch.zeros(1, 1, 1, 5))
