@@ -1,0 +1,28 @@
+"""Issue 14 item 3(a), the head's share inside one network (evaluation only): SMD's output (the mixture's mode) against
+the disparity of its own DispNet backbone (the same weights, the head skipped), on the given data specs.
+
+The backbone of ``SMDNet`` is a ``DispNet``; its weights are written to a temporary dispnet weights file and run
+through the ``dispnet`` matcher (same padding and range handling as ``smd``).
+
+    python docs/experiments/smd_head_vs_backbone.py [WEIGHTS.pt] "real;synthetic:32"
+"""
+import os
+import subprocess
+import sys
+import tempfile
+
+from stereonet.models.weights import default_weights_path, load_weights, save_weights
+
+smd_file = sys.argv[1] if len(sys.argv) > 2 else str(default_weights_path("smd"))
+specs = sys.argv[-1] if len(sys.argv) > 1 else "real"
+net, info = load_weights(smd_file, expected="smd")
+b = net.backbone
+config = {"max_disp": b.max_disp, "channels": b.channels, "aggregation": b.aggregation, "upsample": b.upsample}
+with tempfile.TemporaryDirectory() as tmp:
+    backbone_file = os.path.join(tmp, "smd_backbone.pt")
+    save_weights(backbone_file, "dispnet", config, b)
+    here = os.path.dirname(os.path.abspath(__file__))
+    for spec in specs.split(";"):
+        subprocess.run([sys.executable, os.path.join(here, "real_pairs.py"),
+                        f"smd-head=smd@{smd_file},smd-backbone=dispnet@{backbone_file}", spec,
+                        os.path.join(tmp, "pairs.json")], check=True)
