@@ -96,13 +96,15 @@ class SMDNet(nn.Module):
         layers.append(nn.Conv2d(in_ch, 5, 1))
         self.mlp = nn.Sequential(*layers)  # a per-point MLP written as 1x1 convolutions
 
-    def query(self, backbone: DispNetOutput, grid: torch.Tensor) -> MixtureParams:
+    def query(self, backbone: DispNetOutput, grid: torch.Tensor, detach_anchor: bool = False) -> MixtureParams:
         """Mixture at continuous points ``grid`` :math:`(B, Hq, Wq, 2)` (normalised, align_corners=False).
 
-        Returned disparities are in pixels of the backbone's input resolution.
+        Returned disparities are in pixels of the backbone's input resolution. The two modes are offsets from the
+        backbone's disparity (the anchor); ``detach_anchor`` (training only, same values) stops the mixture's
+        gradient there, so that the head's loss reaches the backbone through its features only.
         """
         sample = lambda x: F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
-        disp = sample(backbone.disparity)  # Bx1xHqxWq
+        disp = sample(backbone.disparity.detach() if detach_anchor else backbone.disparity)  # Bx1xHqxWq
         feats = [sample(backbone.features[s]) for s in (1, 2, 4)]
         raw = self.mlp(torch.cat([*feats, disp / self.max_disp], dim=1))  # Bx5xHqxWq
         unit = self.backbone.disp_unit
@@ -115,14 +117,15 @@ class SMDNet(nn.Module):
         )
 
     def forward(self, left: torch.Tensor, right: torch.Tensor,
-                output_size: tuple[int, int] | None = None) -> SMDOutput:
+                output_size: tuple[int, int] | None = None, detach_anchor: bool = False) -> SMDOutput:
         """left, right :math:`(B, C, H, W)`, H, W multiples of the stride; ``output_size`` (Hq, Wq) defaults
-        to (H, W). Disparities are returned in pixels of the output grid (scaled by Wq / W)."""
+        to (H, W). Disparities are returned in pixels of the output grid (scaled by Wq / W). ``detach_anchor``:
+        see :meth:`query`."""
         backbone = self.backbone(left, right)
         b, _, h, w = left.shape
         hq, wq = output_size if output_size is not None else (h, w)
         grid = query_grid(b, hq, wq, device=left.device, dtype=left.dtype)
-        mix = self.query(backbone, grid)
+        mix = self.query(backbone, grid, detach_anchor)
         scale = wq / w
         if scale != 1.0:
             mix = MixtureParams(mix.mu1 * scale, mix.mu2 * scale, mix.b1 * scale, mix.b2 * scale, mix.pi)

@@ -218,6 +218,9 @@ class SMDModule(StereoModule):
         edge_weight: weight of the mixture NLL within 1 px of a ground-truth depth edge (1 = uniform); SMD-Nets
             trains its head on points sampled half near edges, where the bimodal output matters.
         channels_last: as :class:`DispNetModule`'s.
+        detach_anchor: stop the mixture NLL's gradient at the backbone disparity the two modes are offsets from
+            (:meth:`~stereonet.models.smd.SMDNet.query`), so that only the backbone's own L1 losses train its
+            disparity and the NLL reaches the backbone through its features; same network, same inference.
     """
 
     model_name = "smd"
@@ -226,7 +229,7 @@ class SMDModule(StereoModule):
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
                  aggregation: str = "2d", upsample: str = "bilinear", edge_weight: float = 1.0,
-                 channels_last: bool = False) -> None:
+                 channels_last: bool = False, detach_anchor: bool = False) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if edge_weight < 1.0:
             raise ValueError(f"edge_weight: expected >= 1, got {edge_weight}")
@@ -247,7 +250,7 @@ class SMDModule(StereoModule):
         return self.model(left, right)
 
     def compute(self, batch: dict):
-        out = self.model(*self._images(batch))
+        out = self.model(*self._images(batch), detach_anchor=self.hparams.detach_anchor)
         weight = None
         if self.hparams.edge_weight != 1.0:
             weight = edge_weights(batch["disparity"], batch["valid"], self.hparams.edge_weight)

@@ -308,3 +308,23 @@ def test_weights_roundtrip_and_errors(tmp_path, small_dispnet):
     (tmp_path / "garbage.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(StereoInputError, match="not a readable"):
         load_weights(tmp_path / "garbage.pt")
+
+
+def test_smd_detach_anchor_same_values_no_gradient_into_the_backbone_disparity():
+    torch.manual_seed(0)
+    net = SMDNet(max_disp=16, channels=8).eval()
+    left, right = torch.rand(1, 3, 32, 32), torch.rand(1, 3, 32, 32)
+    backbone = net.backbone(left, right)
+    grid = query_grid(1, 32, 32)
+    for detach in (False, True):
+        mix = net.query(backbone, grid, detach_anchor=detach)
+        (g,) = torch.autograd.grad(mix.mu1.sum() + mix.mu2.sum(), backbone.disparity, allow_unused=True)
+        # the modes are offsets from the anchor: d(mu1 + mu2)/d(anchor) is 2 per query point (bilinear weights)
+        assert (g is None or float(g.abs().sum()) == 0.0) == detach
+        if not detach:
+            plain = mix
+    detached = net.query(backbone, grid, detach_anchor=True)
+    for name in ("mu1", "mu2", "b1", "b2", "pi"):
+        assert torch.equal(getattr(plain, name), getattr(detached, name))
+    out = net(left, right, detach_anchor=True)
+    assert torch.equal(out.disparity, net(left, right).disparity)
