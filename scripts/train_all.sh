@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Train the three learned matchers as the shipped weights were trained, export them to weights/ and plot
 # their curves. Run from the repository root; logs and checkpoints go to lightning_logs/.
-# Times: 58 min each for dispnet and smd (the configs' max_time); the siamese recipe's 29 803 steps took 1 h 37 min
+# Times: 58 min for dispnet (its config's max_time), 3819 steps for smd (32 min alone on both cores); the siamese recipe's 29 803 steps took 1 h 37 min
 # alone on both cores (fourteenth session), longer here with one thread beside the other two. All in parallel, one
 # thread each, on a 2-core CPU (the shipped weights were each trained alone; see stereonet/weights/README.md).
 set -euo pipefail
