@@ -100,14 +100,21 @@ def _run_level_numba(cost: np.ndarray, start: np.ndarray, slope_array: np.ndarra
     in place when ``iterations >= 2``; ``slope_array`` from :func:`_slope_array` (all float32/float64, or all int16
     in fixed point).
     """
+    from stereonet.kernels.bp import bp_level
+
+    final = start if iterations >= 2 else np.empty_like(start)
+    rings, k = _wavefront_rings(iterations, cost.shape[2], cost.shape[3], cost.dtype)
+    bp_level(cost, start, final, rings, slope_array, int(iterations), k)
+    return final
+
+
+def _wavefront_rings(sets: int, depth: int, width: int, dtype) -> tuple[np.ndarray, int]:
+    """Scratch rings for a wavefront writing ``sets`` message sets (:func:`stereonet.kernels.bp.ring_shape`) and its
+    block of rows, read here at call time from ``kernels.bp.ROWS_PER_STEP`` (any value gives the same bits)."""
     from stereonet.kernels import bp as kernels
 
-    # the wavefront's block of rows is read here, at call time (any value gives the same bits)
     k = int(kernels.ROWS_PER_STEP)
-    final = start if iterations >= 2 else np.empty_like(start)
-    rings = np.empty(kernels.ring_shape(iterations, k, cost.shape[2], cost.shape[3]), dtype=cost.dtype)
-    kernels.bp_level(cost, start, final, rings, slope_array, int(iterations), k)
-    return final
+    return np.empty(kernels.ring_shape(sets, k, depth, width), dtype=dtype), k
 
 
 FIXED_POINT_LIMIT = 32000
@@ -227,8 +234,14 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
                         F.avg_pool2d(F.pad(d, (0, d.shape[-1] % 2, 0, d.shape[-2] % 2), mode="replicate"), 2)))
     truncation_eff = min(truncation, float(cost.shape[1]))
     if numba_path:
-        from stereonet.kernels import bp as kernels
-        from stereonet.kernels.bp import beliefs_argmin, beliefs_view, pool_sum2, round_rows, upsample2
+        from stereonet.kernels.bp import (
+            beliefs_argmin,
+            beliefs_view,
+            bp_finest,
+            pool_sum2,
+            round_rows,
+            upsample2,
+        )
 
         # the kernels work row-major (B, H, D, W): each grid row is D contiguous runs of W pixels
         B, D, H, W = cost.shape
@@ -283,11 +296,10 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
         else:  # the finest level in one wavefront from the coarse messages to the beliefs (kernels.bp.bp_finest)
             coarse = _in_dtype(result, costs[0].dtype, scale)
             del result
-            k = int(kernels.ROWS_PER_STEP)
-            rings = np.empty(kernels.ring_shape(iterations + 1, k, D, W), dtype=costs[0].dtype)
+            rings, k = _wavefront_rings(iterations + 1, D, W, costs[0].dtype)
             beliefs_rows = np.empty((B, H, D, W), dtype=out_dtype)
-            kernels.bp_finest(costs[0], coarse, rings, slope_arrays[0], int(iterations), beliefs_rows, labels_rows,
-                              belief_scale, k)
+            bp_finest(costs[0], coarse, rings, slope_arrays[0], int(iterations), beliefs_rows, labels_rows,
+                      belief_scale, k)
             del coarse, rings
         del costs
         beliefs = torch.from_numpy(beliefs_rows).permute(0, 2, 1, 3).to(cost.device)  # BxDxHxW view
