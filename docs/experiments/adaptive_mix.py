@@ -27,7 +27,9 @@ WINDOW = 5
 
 
 def cost_margin(cost: torch.Tensor) -> torch.Tensor:
-    """(B, D, H, W) lower = better -> (B, 1, H, W): second-lowest cost >= 2 px from the lowest, minus the lowest."""
+    """(B, D, H, W) lower = better -> (B, 1, H, W): second-lowest cost >= 2 px from the lowest, minus the lowest.
+    In cost units (bits), unlike stereonet.select.cost_margin_confidence's ratio (c2 - c1) / c2: the mix compares
+    the two costs' margins in the same units."""
     best, idx = cost.min(dim=1, keepdim=True)
     d = torch.arange(cost.shape[1], device=cost.device).view(1, -1, 1, 1)
     far = (d - idx).abs() >= 2
