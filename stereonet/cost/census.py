@@ -68,6 +68,37 @@ def census_transform(img: torch.Tensor, window: int = 5) -> torch.Tensor:
     return torch.cat(words, dim=1)  # BxKxHxW
 
 
+def census_signs(img: torch.Tensor, window: int = 5) -> torch.Tensor:
+    """The census comparisons as a unit-length float feature vector per pixel, for networks that match with
+    correlations (:func:`stereonet.cost.correlation.correlation_1d` and the warped correlations of the models).
+
+    Channel k is ``+1 / sqrt(n)`` where neighbour k is darker than the centre (the bit of
+    :func:`census_transform`), ``-1 / sqrt(n)`` otherwise, ``n = window**2 - 1``; so the dot product of two
+    pixels' vectors is ``1 - 2 h / n`` for their Hamming distance ``h``. No parameters: the features do not
+    change under any monotonic change of intensity, whatever images a network was trained on.
+
+    Args:
+        img: :math:`(B, C, H, W)` image (colour is converted to grey first).
+        window: odd census window size (>= 3).
+
+    Returns:
+        :math:`(B, n, H, W)` float, the image's dtype.
+    """
+    check_image(img, "img")
+    check_window(window, "census_window")
+    if window < 3:
+        raise StereoInputError(f"census_window: expected an odd integer >= 3, got {window}")
+    grey = to_grey(img)
+    b, _, h, w = grey.shape
+    r = window // 2
+    patches = F.unfold(F.pad(grey, (r, r, r, r), mode="replicate"), window).view(b, window * window, h, w)
+    centre = (window * window) // 2
+    neighbours = torch.cat([patches[:, :centre], patches[:, centre + 1:]], dim=1)
+    n = window * window - 1
+    unit = 1.0 / float(np.sqrt(n))
+    return torch.where(neighbours < grey, unit, -unit).to(grey.dtype)
+
+
 def popcount(x: torch.Tensor) -> torch.Tensor:
     """Number of set bits of non-negative int64 values (SWAR, no loops over bits)."""
     x = x - ((x >> 1) & _M1)

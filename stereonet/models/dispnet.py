@@ -32,6 +32,7 @@ from torch import nn
 
 from stereonet.aggregate.soft import soft_argmax
 from stereonet.checks import StereoInputError, check_image_pair
+from stereonet.cost.census import census_signs, to_grey
 from stereonet.cost.correlation import correlation_1d, group_correlation_1d
 from stereonet.models.layers import (
     InputPadder,
@@ -83,13 +84,18 @@ class DispNet(nn.Module):
         groups: channel groups of the "3d" correlation.
         upsample: how each coarser disparity reaches the 1/2 and 1/1 stages: "bilinear" or "select" (a
             matched soft choice among the 3x3 coarse neighbours and the bilinear value; sharp edges).
+        matching: what every correlation compares: "learned" (the shared encoder's unit-length features) or
+            "census" (:func:`~stereonet.cost.census.census_signs` of the grey image, ``census_window`` square,
+            at each scale of the area-downsampled grey image: fixed features that no training data can bias;
+            the encoder then runs on the left image only, as context).
     """
 
     stride = 16
     scales = (16, 8, 4, 2, 1)
 
     def __init__(self, max_disp: int = 96, channels: int = 16, refine_radius: int = 2,
-                 aggregation: str = "2d", groups: int = 4, upsample: str = "bilinear") -> None:
+                 aggregation: str = "2d", groups: int = 4, upsample: str = "bilinear",
+                 matching: str = "learned") -> None:
         super().__init__()
         if max_disp < 4:
             raise StereoInputError(f"max_disp: expected >= 4, got {max_disp}")
@@ -99,6 +105,11 @@ class DispNet(nn.Module):
             raise StereoInputError(f"groups: expected a divisor of 2 * channels = {2 * channels}, got {groups}")
         if upsample not in ("bilinear", "select"):
             raise StereoInputError(f"upsample: expected 'bilinear' or 'select', got {upsample!r}")
+        if matching not in ("learned", "census"):
+            raise StereoInputError(f"matching: expected 'learned' or 'census', got {matching!r}")
+        if matching == "census" and aggregation != "2d":
+            raise StereoInputError("matching: 'census' needs aggregation '2d' (a group-wise volume needs learned "
+                                   "feature groups)")
         if refine_radius < 0:
             raise StereoInputError(f"refine_radius: expected >= 0, got {refine_radius}")
         self.max_disp = int(max_disp)
@@ -106,6 +117,7 @@ class DispNet(nn.Module):
         self.refine_radius = int(refine_radius)
         self.aggregation, self.groups = aggregation, int(groups)
         self.upsample = upsample
+        self.matching = matching
         c = self.channels
         r = 2 * self.refine_radius + 1  # channels of each local correlation
         self.corr_disp = self.max_disp // 4
@@ -151,6 +163,13 @@ class DispNet(nn.Module):
             self.select_scale = nn.Parameter(torch.tensor(10.0))
 
     num_candidates = 10  # 3x3 coarse neighbours + the bilinear value
+    census_window = 5  # of matching="census", at every scale
+
+    def _census_features(self, left: torch.Tensor, right: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Census signs of both views at 1/1, 1/2 and 1/4 (the grey image area-downsampled to each scale),
+        each :math:`(2B, n, H/s, W/s)`, left views first, as the unit-length matching features of each scale."""
+        grey = torch.cat([to_grey(left), to_grey(right)], dim=0)
+        return tuple(census_signs(F.avg_pool2d(grey, s) if s > 1 else grey, self.census_window) for s in (1, 2, 4))
 
     def _select_up(self, coarse: torch.Tensor, unit_left: torch.Tensor, unit_right: torch.Tensor,
                    context: torch.Tensor, scale: int, head: nn.Module) -> torch.Tensor:
@@ -186,18 +205,23 @@ class DispNet(nn.Module):
         if h % self.stride or w % self.stride:
             raise StereoInputError(f"left: expected H and W multiples of {self.stride} (use predict_disparity to pad), "
                              f"got {tuple(left.shape)}")
-        x_left, x_right = standardize_image(left), standardize_image(right)
-        both = torch.cat([x_left, x_right], dim=0)  # 2BxCxHxW: one pass of the shared encoder
-        e0 = self.enc0(both)
-        e1 = self.enc1(both)
-        e2 = self.enc2(e1)
+        x_left = standardize_image(left)
         b = left.shape[0]
-        e1_l, e2_l, e2_r = e1[:b], e2[:b], e2[b:]
+        if self.matching == "census":  # fixed matching features; the encoder is context for the left view
+            e0, e1 = self.enc0(x_left), self.enc1(x_left)
+            e2 = self.enc2(e1)
+            n0, n1, n2 = self._census_features(left, right)
+        else:  # 2BxCxHxW: one pass of the shared encoder over both views
+            both = torch.cat([x_left, standardize_image(right)], dim=0)
+            e0, e1 = self.enc0(both), self.enc1(both)
+            e2 = self.enc2(e1)
+            n0, n1, n2 = unit_channels(e0), unit_channels(e1), unit_channels(e2)  # normalised once per scale
+        e1_l, e2_l = e1[:b], e2[:b]
         if self.aggregation == "2d":
-            corr = correlation_1d(unit_channels(e2_l), unit_channels(e2_r), self.corr_disp)  # BxD4xH/4xW/4
+            corr = correlation_1d(n2[:b], n2[b:], self.corr_disp)  # BxD4xH/4xW/4
             logits = corr * self.corr_scale + self.corr_agg(corr)
         else:
-            gwc = group_correlation_1d(unit_channels(e2_l), unit_channels(e2_r), self.corr_disp,
+            gwc = group_correlation_1d(n2[:b], n2[b:], self.corr_disp,
                                        self.groups)  # BxGxD4xH/4xW/4
             corr = gwc.mean(dim=1)  # the plain correlation (mean over all channels), BxD4xH/4xW/4
             logits = corr * self.corr_scale + self.corr_agg(gwc * self.groups)[:, 0]
@@ -210,7 +234,6 @@ class DispNet(nn.Module):
         d3 = _up2(d4) + self.pred3(x3) * self.disp_unit
         x2 = self.dec2(torch.cat([self.up2(x3), e2_l, corr, _up2(d3)], dim=1))
         d2 = d_match + self.pred2(x2) * self.disp_unit
-        n1, n0 = unit_channels(e1), unit_channels(e0)  # both views, normalised once per scale
         u1 = self.up1(x2)
         if self.upsample == "select":
             d1_init = self._select_up(d2, n1[:b], n1[b:], torch.cat([u1, e1_l], dim=1), 2, self.select1)

@@ -166,7 +166,7 @@ class DispNetModule(StereoModule):
     """Trains :class:`~stereonet.models.dispnet.DispNet` with the coarse-to-fine multi-scale L1 loss.
 
     Args:
-        max_disp, channels, aggregation, upsample: the network's (see DispNet).
+        max_disp, channels, aggregation, upsample, matching: the network's (see DispNet).
         scale_weight_width: std (in scale steps) of the moving loss-weight bump.
         match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
             makes the shared features learn to match instead of the decoder learning a prior.
@@ -179,16 +179,20 @@ class DispNetModule(StereoModule):
     def __init__(self, max_disp: int = 96, channels: int = 16, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4,
                  schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear",
-                 channels_last: bool = False) -> None:
+                 channels_last: bool = False, matching: str = "learned") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
-        self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample)
+        self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample,
+                             matching=matching)
         self.use_channels_last(channels_last)
 
     def model_config(self) -> dict:
         hp = self.hparams
-        return {"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation,
-                "upsample": hp.upsample}
+        config = {"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation,
+                  "upsample": hp.upsample}
+        if hp.matching != "learned":  # older weight files have no "matching" (they are "learned")
+            config["matching"] = hp.matching
+        return config
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
