@@ -12,6 +12,7 @@ from stereonet.cost import (
     box_mean,
     box_sum,
     build_cost_volume,
+    census_signs,
     census_transform,
     correlation_similarity,
     hamming,
@@ -101,6 +102,24 @@ def test_census_and_popcount():
     assert codes.shape == (1, 2, 10, 12)
     assert hamming(codes, codes).eq(0).all()
     assert hamming(codes, census_transform(1.0 - img, 9)).max() <= 80
+
+
+def test_census_signs_are_the_census_bits_as_unit_vectors():
+    g = torch.Generator().manual_seed(2)
+    img = torch.rand(2, 3, 9, 11, generator=g)
+    signs = census_signs(img, 5)
+    assert signs.shape == (2, 24, 9, 11) and signs.dtype == img.dtype
+    assert torch.allclose((signs * signs).sum(1), torch.ones(2, 9, 11))
+    codes = census_transform(img, 5)[:, 0]  # 24 bits in one word
+    bits = torch.stack([(codes >> k) & 1 for k in range(24)], dim=1)
+    assert torch.equal(signs > 0, bits == 1)  # same neighbour order as the packed code
+    other = torch.rand(2, 3, 9, 11, generator=g)
+    dots = (signs * census_signs(other, 5)).sum(1, keepdim=True)
+    assert torch.allclose(dots, 1 - 2 * hamming(census_transform(img, 5), census_transform(other, 5)) / 24, atol=1e-6)
+    grey = torch.rand(2, 1, 9, 11, generator=g)
+    assert torch.equal(census_signs(grey ** 3 * 0.7 + 0.1, 5), census_signs(grey, 5))  # any increasing change
+    with pytest.raises(StereoInputError, match="census_window"):
+        census_signs(img, 4)
 
 
 def test_correlation_similarity_gradcheck_and_values():

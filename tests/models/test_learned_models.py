@@ -129,6 +129,42 @@ def test_group_correlation_means_to_correlation_and_aggregation_variants():
         DispNet(channels=8, groups=3)
 
 
+def test_census_matching_finds_the_shift_untrained_and_keeps_its_config(tmp_path):
+    """matching="census": the 1/4 correlation compares census signs of the two views (right view second), so an
+    untrained network's soft-argmin start finds a textured pair's shift; the right view reaches the network only
+    through those signs (an increasing change of the right image's intensities changes nothing)."""
+    from stereonet.training.module import DispNetModule
+
+    g = torch.Generator().manual_seed(7)
+    shift = 8
+    texture = torch.nn.functional.interpolate(torch.rand(1, 1, 16, 28, generator=g), size=(64, 112), mode="bilinear")
+    left, right = texture[..., :96].repeat(1, 3, 1, 1), texture[..., shift:shift + 96].repeat(1, 3, 1, 1)
+    net = DispNet(max_disp=32, channels=8, upsample="select", matching="census").eval()
+    torch.nn.init.zeros_(net.corr_agg[-1].weight)
+    torch.nn.init.zeros_(net.corr_agg[-1].bias)  # logits = correlation x temperature alone
+    with torch.no_grad():
+        net.corr_scale.fill_(24 * 10.0)  # the correlation is a mean over 24 channels: cosine 1 -> logit 10
+    with torch.no_grad():
+        out = net(left, right)
+        again = net(left, right * 0.5)  # exact in floats: every comparison keeps its sign
+    core = out.matched[..., 2:-2, 4:-2]  # away from the borders the shifted crop lacks
+    assert (core - shift).abs().median() < 1.0
+    assert torch.equal(out.disparity, again.disparity)
+    learned = DispNet(max_disp=32, channels=8, upsample="select").eval()
+    assert sum(p.numel() for p in learned.parameters()) == sum(p.numel() for p in net.parameters())
+    module = DispNetModule(max_disp=32, channels=8, upsample="select", matching="census")
+    assert module.model_config()["matching"] == "census"
+    assert "matching" not in DispNetModule(max_disp=32, channels=8).model_config()  # older files stay valid
+    path = tmp_path / "census.pt"
+    save_weights(path, "dispnet", module.model_config(), module.model)
+    loaded, _ = load_weights(path, expected="dispnet")
+    assert loaded.matching == "census"
+    with pytest.raises(ValueError, match="matching"):
+        DispNet(matching="sift")
+    with pytest.raises(ValueError, match="matching"):
+        DispNet(matching="census", aggregation="3d")
+
+
 def test_select_upsampling_keeps_depth_edges_sharp():
     """At a depth edge the matched choice among coarse neighbours gives the foreground's or the background's
     disparity where bilinear upsampling blends them (untrained head: the logits are the correlation alone)."""
