@@ -75,17 +75,17 @@ class SMDNet(nn.Module):
     """DispNet backbone + continuous bimodal mixture head.
 
     Args:
-        max_disp, channels, aggregation, upsample: as :class:`DispNet`.
+        max_disp, channels, aggregation, upsample, matching: as :class:`DispNet`.
         hidden: widths of the MLP's hidden layers.
     """
 
     stride = DispNet.stride
 
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
-                 aggregation: str = "2d", upsample: str = "bilinear") -> None:
+                 aggregation: str = "2d", upsample: str = "bilinear", matching: str = "learned") -> None:
         super().__init__()
         self.backbone = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation,
-                                upsample=upsample)
+                                upsample=upsample, matching=matching)
         self.max_disp = self.backbone.max_disp
         c = self.backbone.channels
         in_ch = c // 2 + c + 2 * c + 1  # features at strides 1, 2, 4 + the backbone disparity

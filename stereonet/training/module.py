@@ -215,7 +215,7 @@ class SMDModule(StereoModule):
     """Trains :class:`~stereonet.models.smd.SMDNet`: mixture NLL + ``backbone_weight`` x multi-scale L1.
 
     Args:
-        max_disp, channels, hidden, aggregation, upsample: the network's (see SMDNet).
+        max_disp, channels, hidden, aggregation, upsample, matching: the network's (see SMDNet).
         backbone_weight: weight of the backbone's multi-scale L1 loss.
         init_backbone: optional DispNet weights (slim .pt or .ckpt) to start the backbone from.
         match_weight: as :class:`DispNetModule`'s, on the backbone.
@@ -233,13 +233,13 @@ class SMDModule(StereoModule):
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
                  aggregation: str = "2d", upsample: str = "bilinear", edge_weight: float = 1.0,
-                 channels_last: bool = False, detach_anchor: bool = False) -> None:
+                 channels_last: bool = False, detach_anchor: bool = False, matching: str = "learned") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if edge_weight < 1.0:
             raise ValueError(f"edge_weight: expected >= 1, got {edge_weight}")
         self.save_hyperparameters()
         self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation,
-                            upsample=upsample)
+                            upsample=upsample, matching=matching)
         if init_backbone:
             backbone, _ = load_weights(init_backbone, expected="dispnet")
             self.model.backbone.load_state_dict(backbone.state_dict())
@@ -247,8 +247,11 @@ class SMDModule(StereoModule):
 
     def model_config(self) -> dict:
         hp = self.hparams
-        return {"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden),
-                "aggregation": hp.aggregation, "upsample": hp.upsample}
+        config = {"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden),
+                  "aggregation": hp.aggregation, "upsample": hp.upsample}
+        if hp.matching != "learned":  # as DispNetModule's
+            config["matching"] = hp.matching
+        return config
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)

@@ -133,7 +133,7 @@ def test_census_matching_finds_the_shift_untrained_and_keeps_its_config(tmp_path
     """matching="census": the 1/4 correlation compares census signs of the two views (right view second), so an
     untrained network's soft-argmin start finds a textured pair's shift; the right view reaches the network only
     through those signs (an increasing change of the right image's intensities changes nothing)."""
-    from stereonet.training.module import DispNetModule
+    from stereonet.training.module import DispNetModule, SMDModule
 
     g = torch.Generator().manual_seed(7)
     shift = 8
@@ -159,6 +159,9 @@ def test_census_matching_finds_the_shift_untrained_and_keeps_its_config(tmp_path
     save_weights(path, "dispnet", module.model_config(), module.model)
     loaded, _ = load_weights(path, expected="dispnet")
     assert loaded.matching == "census"
+    smd = SMDModule(max_disp=32, channels=8, upsample="select", matching="census")
+    save_weights(tmp_path / "smd.pt", "smd", smd.model_config(), smd.model)
+    assert load_weights(tmp_path / "smd.pt", expected="smd")[0].backbone.matching == "census"
     with pytest.raises(ValueError, match="matching"):
         DispNet(matching="sift")
     with pytest.raises(ValueError, match="matching"):
