@@ -81,7 +81,7 @@ class DispNet(nn.Module):
         aggregation: how the 1/4 correlation is turned into the soft-argmin start: "2d" (2-D convolutions with
             the disparities as channels) or "3d" (a group-wise correlation volume, ``groups`` groups,
             aggregated by three 3x3x3 convolutions as in GwcNet; much better matching for little time).
-        groups: channel groups of the "3d" correlation.
+        groups: channel groups of the "3d" correlation (of the 2c learned channels, or of the census comparisons).
         upsample: how each coarser disparity reaches the 1/2 and 1/1 stages: "bilinear" or "select" (a
             matched soft choice among the 3x3 coarse neighbours and the bilinear value; sharp edges).
         matching: what every correlation compares: "learned" (the shared encoder's unit-length features) or
@@ -101,15 +101,15 @@ class DispNet(nn.Module):
             raise StereoInputError(f"max_disp: expected >= 4, got {max_disp}")
         if aggregation not in ("2d", "3d"):
             raise StereoInputError(f"aggregation: expected '2d' or '3d', got {aggregation!r}")
-        if groups < 1 or (2 * channels) % groups:
-            raise StereoInputError(f"groups: expected a divisor of 2 * channels = {2 * channels}, got {groups}")
         if upsample not in ("bilinear", "select"):
             raise StereoInputError(f"upsample: expected 'bilinear' or 'select', got {upsample!r}")
         if matching not in ("learned", "census"):
             raise StereoInputError(f"matching: expected 'learned' or 'census', got {matching!r}")
-        if matching == "census" and aggregation != "2d":
-            raise StereoInputError("matching: 'census' needs aggregation '2d' (a group-wise volume needs learned "
-                                   "feature groups)")
+        matched_channels = self.census_window ** 2 - 1 if matching == "census" else 2 * channels
+        if groups < 1 or matched_channels % groups:
+            raise StereoInputError(f"groups: expected a divisor of the {matched_channels} matching channels "
+                                   f"({'census comparisons' if matching == 'census' else '2 * channels'}), "
+                                   f"got {groups}")
         if refine_radius < 0:
             raise StereoInputError(f"refine_radius: expected >= 0, got {refine_radius}")
         self.max_disp = int(max_disp)

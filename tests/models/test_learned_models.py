@@ -164,8 +164,10 @@ def test_census_matching_finds_the_shift_untrained_and_keeps_its_config(tmp_path
     assert load_weights(tmp_path / "smd.pt", expected="smd")[0].backbone.matching == "census"
     with pytest.raises(ValueError, match="matching"):
         DispNet(matching="sift")
-    with pytest.raises(ValueError, match="matching"):
-        DispNet(matching="census", aggregation="3d")
+    with pytest.raises(ValueError, match="groups: expected a divisor of the 24 matching channels"):
+        DispNet(matching="census", aggregation="3d", groups=5)
+    grouped = DispNet(max_disp=32, channels=8, matching="census", aggregation="3d", groups=4)
+    assert grouped(left, right).disparity.shape == left[:, :1].shape
 
 
 def test_select_upsampling_keeps_depth_edges_sharp():

@@ -384,13 +384,15 @@ def test_sample_max_disp_widens_the_range_within_bounds():
     assert sample_max_disp("data_gen", 4, 256, 8, g) is None  # the difficulty's own range is larger already
 
 
-@pytest.mark.parametrize("module_cls", [DispNetModule, SMDModule])
-def test_channels_last_training_is_the_same_maths(module_cls, one_thread):
-    """channels_last only changes the memory layout: same loss and gradients, and its weights load into a
-    network built in the default layout."""
+@pytest.mark.parametrize("module_cls, options", [(DispNetModule, {}), (SMDModule, {}),
+                                                 (DispNetModule, {"matching": "census", "aggregation": "3d"})])
+def test_channels_last_training_is_the_same_maths(module_cls, options, one_thread):
+    """channels_last only changes the memory layout (of the 2-D convolutions; 3-D ones keep theirs): same loss and
+    gradients, and its weights load into a network built in the default layout."""
     torch.manual_seed(0)
     batch = _one_batch()
-    plain, fast = module_cls(max_disp=16, channels=8), module_cls(max_disp=16, channels=8, channels_last=True)
+    plain = module_cls(max_disp=16, channels=8, **options)
+    fast = module_cls(max_disp=16, channels=8, channels_last=True, **options)
     fast.load_state_dict(plain.state_dict())
     net = fast.model.backbone if module_cls is SMDModule else fast.model
     assert net.enc1[0][0].weight.is_contiguous(memory_format=torch.channels_last)
@@ -400,7 +402,7 @@ def test_channels_last_training_is_the_same_maths(module_cls, one_thread):
     loss_fast.backward()
     for (name, p), q in zip(plain.named_parameters(), fast.parameters()):
         torch.testing.assert_close(q.grad, p.grad, rtol=1e-4, atol=1e-5, msg=name)
-    again = module_cls(max_disp=16, channels=8)
+    again = module_cls(max_disp=16, channels=8, **options)
     again.load_state_dict(fast.state_dict())
     torch.testing.assert_close(again.compute(batch)[0], loss_plain, rtol=1e-5, atol=1e-5)
 
