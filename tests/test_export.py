@@ -260,3 +260,29 @@ def test_infer_backend_onnx_reproduces_torch(cones, onnx_files, tmp_path, capsys
         assert code == 2 and len(lines) == 1, (case, lines)
         assert lines[0].startswith("infer.py: error: ") and re.search(message, lines[0]), (case, lines[0])
         assert not out.exists()
+
+
+def test_census_matching_features_are_the_same_bits_in_onnxruntime(threads):
+    """DispNet(matching="census") compares census signs of a photo's grey values, many of them equal: the grey
+    conversion and the 2x2 means are written so that onnxruntime computes the same bits as torch (a reduction
+    in another order flips ties, which moved the exported network's output by up to 0.4 px)."""
+    import io
+
+    import onnxruntime as ort
+
+    from stereonet.models.dispnet import DispNet
+    from stereonet.models.graphs import OPSET
+
+    net = DispNet(max_disp=32, channels=8, matching="census").eval()
+
+    class Features(torch.nn.Module):
+        def forward(self, left, right):
+            return net._census_features(left, right)
+
+    left, right = (read_image(CONES / name)[..., :368, :448] for name in ("im2.png", "im6.png"))
+    buffer = io.BytesIO()
+    torch.onnx.export(Features(), (left, right), buffer, dynamo=False, input_names=["left", "right"],
+                      opset_version=OPSET)
+    got = ort.InferenceSession(buffer.getvalue()).run(None, {"left": left.numpy(), "right": right.numpy()})
+    for expected, value in zip(Features()(left, right), got):
+        assert torch.equal(expected, torch.from_numpy(value))

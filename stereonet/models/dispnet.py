@@ -66,6 +66,11 @@ class DispNetOutput:
     matched: torch.Tensor
 
 
+def _mean2x2(x: torch.Tensor) -> torch.Tensor:
+    """2x2 area downsampling of :math:`(B, C, H, W)` (H, W even) as fixed-order elementwise sums."""
+    return ((x[..., 0::2, 0::2] + x[..., 0::2, 1::2]) + (x[..., 1::2, 0::2] + x[..., 1::2, 1::2])) * 0.25
+
+
 def _up2(x: torch.Tensor) -> torch.Tensor:
     return F.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
 
@@ -167,9 +172,18 @@ class DispNet(nn.Module):
 
     def _census_features(self, left: torch.Tensor, right: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Census signs of both views at 1/1, 1/2 and 1/4 (the grey image area-downsampled to each scale),
-        each :math:`(2B, n, H/s, W/s)`, left views first, as the unit-length matching features of each scale."""
-        grey = torch.cat([to_grey(left), to_grey(right)], dim=0)
-        return tuple(census_signs(F.avg_pool2d(grey, s) if s > 1 else grey, self.census_window) for s in (1, 2, 4))
+        each :math:`(2B, n, H/s, W/s)`, left views first, as the unit-length matching features of each scale.
+
+        The grey image and its 2x2 means are written as elementwise sums in a fixed order, so that an exported
+        graph (onnxruntime) computes the same bits: census comparisons of a photo's many equal grey values would
+        flip on a rounding difference of a reduction's order."""
+        both = torch.cat([left, right], dim=0)
+        if both.shape[1] == 3:  # BT.601 luma, as to_grey, in grey_numpy's order
+            grey = (both[:, 0:1] * 0.299 + both[:, 1:2] * 0.587) + both[:, 2:3] * 0.114
+        else:
+            grey = to_grey(both)
+        half = _mean2x2(grey)
+        return tuple(census_signs(g, self.census_window) for g in (grey, half, _mean2x2(half)))
 
     def _select_up(self, coarse: torch.Tensor, unit_left: torch.Tensor, unit_right: torch.Tensor,
                    context: torch.Tensor, scale: int, head: nn.Module) -> torch.Tensor:
