@@ -32,7 +32,7 @@ from torch import nn
 
 from stereonet.aggregate.soft import soft_argmax
 from stereonet.checks import StereoInputError, check_image_pair
-from stereonet.cost.census import census_signs, to_grey
+from stereonet.cost.census import census_signs
 from stereonet.cost.correlation import correlation_1d, group_correlation_1d
 from stereonet.models.layers import (
     InputPadder,
@@ -178,10 +178,9 @@ class DispNet(nn.Module):
         graph (onnxruntime) computes the same bits: census comparisons of a photo's many equal grey values would
         flip on a rounding difference of a reduction's order."""
         both = torch.cat([left, right], dim=0)
-        if both.shape[1] == 3:  # BT.601 luma, as to_grey, in grey_numpy's order
-            grey = (both[:, 0:1] * 0.299 + both[:, 1:2] * 0.587) + both[:, 2:3] * 0.114
-        else:
-            grey = to_grey(both)
+        if both.shape[1] == 1:  # as standardize_image: a grey pair is three equal channels (the same bits as a
+            both = both.expand(-1, 3, -1, -1)  # graph that receives it expanded)
+        grey = (both[:, 0:1] * 0.299 + both[:, 1:2] * 0.587) + both[:, 2:3] * 0.114  # BT.601 luma, grey_numpy's order
         half = _mean2x2(grey)
         return tuple(census_signs(g, self.census_window) for g in (grey, half, _mean2x2(half)))
 
