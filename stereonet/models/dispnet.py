@@ -36,6 +36,7 @@ from stereonet.cost.census import census_signs
 from stereonet.cost.correlation import correlation_1d, group_correlation_1d
 from stereonet.models.layers import (
     InputPadder,
+    PlaneConv3d,
     conv3d_block,
     conv_block,
     local_correlation,
@@ -140,7 +141,7 @@ class DispNet(nn.Module):
             self.corr_agg = nn.Sequential(conv_block(d4, d4), nn.Conv2d(d4, d4, 3, padding=1))
         else:  # group-wise correlation volume aggregated by 3-D convolutions over (disparity, y, x)
             g = self.groups
-            self.corr_agg = nn.Sequential(conv3d_block(g, 8), conv3d_block(8, 8), nn.Conv3d(8, 1, 3, padding=1))
+            self.corr_agg = nn.Sequential(conv3d_block(g, 8), conv3d_block(8, 8), PlaneConv3d(8, 1))
         self.enc3 = nn.Sequential(conv_block(d4 + c, 4 * c, 3, stride=2), conv_block(4 * c, 4 * c))
         self.enc4 = nn.Sequential(conv_block(4 * c, 6 * c, 3, stride=2), conv_block(6 * c, 6 * c))
         # decoder
