@@ -22,11 +22,14 @@ _M4 = 0x0F0F0F0F0F0F0F0F
 
 
 def to_grey(img: torch.Tensor) -> torch.Tensor:
-    """(B, C, H, W) -> (B, 1, H, W): ITU-R BT.601 luma for C = 3, identity for C = 1."""
+    """(B, C, H, W) -> (B, 1, H, W): ITU-R BT.601 luma for C = 3, identity for C = 1.
+
+    Written as elementwise sums in a fixed order (the same bits as a channel reduction in torch, and as
+    :func:`grey_numpy`), so that an exported graph (onnxruntime) computes the same bits too: census comparisons of a
+    photo's many equal grey values would flip on a rounding difference of a reduction's order."""
     if img.shape[1] == 1:
         return img
-    w = img.new_tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)
-    return (img * w).sum(1, keepdim=True)
+    return (img[:, 0:1] * 0.299 + img[:, 1:2] * 0.587) + img[:, 2:3] * 0.114
 
 
 def grey_numpy(img: torch.Tensor) -> np.ndarray:

@@ -32,7 +32,7 @@ from torch import nn
 
 from stereonet.aggregate.soft import soft_argmax
 from stereonet.checks import StereoInputError, check_image_pair
-from stereonet.cost.census import census_signs
+from stereonet.cost.census import census_signs, to_grey
 from stereonet.cost.correlation import correlation_1d, group_correlation_1d
 from stereonet.models.layers import (
     InputPadder,
@@ -175,13 +175,12 @@ class DispNet(nn.Module):
         """Census signs of both views at 1/1, 1/2 and 1/4 (the grey image area-downsampled to each scale),
         each :math:`(2B, n, H/s, W/s)`, left views first, as the unit-length matching features of each scale.
 
-        The grey image and its 2x2 means are written as elementwise sums in a fixed order, so that an exported
-        graph (onnxruntime) computes the same bits: census comparisons of a photo's many equal grey values would
-        flip on a rounding difference of a reduction's order."""
+        The grey image (:func:`~stereonet.cost.census.to_grey`) and its 2x2 means are fixed-order elementwise sums,
+        so that an exported graph (onnxruntime) computes the same census bits."""
         both = torch.cat([left, right], dim=0)
         if both.shape[1] == 1:  # as standardize_image: a grey pair is three equal channels (the same bits as a
             both = both.expand(-1, 3, -1, -1)  # graph that receives it expanded)
-        grey = (both[:, 0:1] * 0.299 + both[:, 1:2] * 0.587) + both[:, 2:3] * 0.114  # BT.601 luma, grey_numpy's order
+        grey = to_grey(both)
         half = _mean2x2(grey)
         return tuple(census_signs(g, self.census_window) for g in (grey, half, _mean2x2(half)))
 

@@ -116,6 +116,9 @@ def test_census_signs_are_the_census_bits_as_unit_vectors():
     other = torch.rand(2, 3, 9, 11, generator=g)
     dots = (signs * census_signs(other, 5)).sum(1, keepdim=True)
     assert torch.allclose(dots, 1 - 2 * hamming(census_transform(img, 5), census_transform(other, 5)) / 24, atol=1e-6)
+    from stereonet.cost.census import grey_numpy, to_grey
+
+    assert torch.equal(to_grey(img)[0, 0], torch.from_numpy(grey_numpy(img[0])))  # the same bits in numpy
     grey = torch.rand(2, 1, 9, 11, generator=g)
     assert torch.equal(census_signs(grey ** 3 * 0.7 + 0.1, 5), census_signs(grey, 5))  # any increasing change
     with pytest.raises(StereoInputError, match="census_window"):
