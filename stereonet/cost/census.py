@@ -41,6 +41,13 @@ def grey_numpy(img: torch.Tensor) -> np.ndarray:
     return (a[0] * np.float32(0.299) + a[1] * np.float32(0.587)) + a[2] * np.float32(0.114)
 
 
+def _check_census_args(img: torch.Tensor, window: int) -> None:
+    check_image(img, "img")
+    check_window(window, "census_window")
+    if window < 3:
+        raise StereoInputError(f"census_window: expected an odd integer >= 3, got {window}")
+
+
 def census_transform(img: torch.Tensor, window: int = 5) -> torch.Tensor:
     """Bit-packed census codes.
 
@@ -51,10 +58,7 @@ def census_transform(img: torch.Tensor, window: int = 5) -> torch.Tensor:
     Returns:
         :math:`(B, K, H, W)` int64 with ``K = ceil((window**2 - 1) / 62)`` words per pixel.
     """
-    check_image(img, "img")
-    check_window(window, "census_window")
-    if window < 3:
-        raise StereoInputError(f"census_window: expected an odd integer >= 3, got {window}")
+    _check_census_args(img, window)
     grey = to_grey(img)
     r = window // 2
     padded = F.pad(grey, (r, r, r, r), mode="replicate")
@@ -87,10 +91,7 @@ def census_signs(img: torch.Tensor, window: int = 5) -> torch.Tensor:
     Returns:
         :math:`(B, n, H, W)` float, the image's dtype.
     """
-    check_image(img, "img")
-    check_window(window, "census_window")
-    if window < 3:
-        raise StereoInputError(f"census_window: expected an odd integer >= 3, got {window}")
+    _check_census_args(img, window)
     grey = to_grey(img)
     b, _, h, w = grey.shape
     r = window // 2

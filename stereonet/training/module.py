@@ -165,6 +165,12 @@ class StereoModule(L.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
+def _with_matching(config: dict, matching: str) -> dict:
+    """A DispNet/SMD network config with ``matching`` added unless it is the default "learned" (so the weight files of
+    learned-feature networks stay as they were; files without the key are "learned")."""
+    return config if matching == "learned" else {**config, "matching": matching}
+
+
 class DispNetModule(StereoModule):
     """Trains :class:`~stereonet.models.dispnet.DispNet` with the coarse-to-fine multi-scale L1 loss.
 
@@ -191,11 +197,8 @@ class DispNetModule(StereoModule):
 
     def model_config(self) -> dict:
         hp = self.hparams
-        config = {"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation,
-                  "upsample": hp.upsample}
-        if hp.matching != "learned":  # older weight files have no "matching" (they are "learned")
-            config["matching"] = hp.matching
-        return config
+        return _with_matching({"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation,
+                               "upsample": hp.upsample}, hp.matching)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
@@ -250,11 +253,8 @@ class SMDModule(StereoModule):
 
     def model_config(self) -> dict:
         hp = self.hparams
-        config = {"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden),
-                  "aggregation": hp.aggregation, "upsample": hp.upsample}
-        if hp.matching != "learned":  # as DispNetModule's
-            config["matching"] = hp.matching
-        return config
+        return _with_matching({"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden),
+                               "aggregation": hp.aggregation, "upsample": hp.upsample}, hp.matching)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
