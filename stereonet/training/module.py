@@ -231,6 +231,9 @@ class SMDModule(StereoModule):
         detach_anchor: stop the mixture NLL's gradient at the backbone disparity the two modes are offsets from
             (:meth:`~stereonet.models.smd.SMDNet.query`), so that only the backbone's own L1 losses train its
             disparity and the NLL reaches the backbone through its features; same network, same inference.
+        freeze_backbone: keep the ``init_backbone`` weights fixed and train the head alone by the mixture NLL (the
+            backbone's L1 losses are then not computed): SMD is that very backbone plus the head, so the head's
+            effect on edges is measured against the backbone trained without it. Needs ``init_backbone``.
     """
 
     model_name = "smd"
@@ -239,16 +242,26 @@ class SMDModule(StereoModule):
                  backbone_weight: float = 0.5, init_backbone: str | None = None, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
                  aggregation: str = "2d", upsample: str = "bilinear", edge_weight: float = 1.0,
-                 channels_last: bool = False, detach_anchor: bool = False, matching: str = "learned") -> None:
+                 channels_last: bool = False, detach_anchor: bool = False, matching: str = "learned",
+                 freeze_backbone: bool = False) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if edge_weight < 1.0:
             raise ValueError(f"edge_weight: expected >= 1, got {edge_weight}")
+        if freeze_backbone and not init_backbone:
+            raise ValueError("freeze_backbone: needs init_backbone (the DispNet weights to keep fixed)")
         self.save_hyperparameters()
         self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation,
                             upsample=upsample, matching=matching)
         if init_backbone:
-            backbone, _ = load_weights(init_backbone, expected="dispnet")
+            backbone, info = load_weights(init_backbone, expected="dispnet")
+            wanted = _with_matching({"max_disp": max_disp, "channels": channels, "aggregation": aggregation,
+                                     "upsample": upsample}, matching)
+            if dict(info["config"]) != wanted:
+                raise ValueError(f"init_backbone: {init_backbone!r} holds a DispNet with config {info['config']}, "
+                                 f"expected {wanted}")
             self.model.backbone.load_state_dict(backbone.state_dict())
+        if freeze_backbone:
+            self.model.backbone.requires_grad_(False)
         self.use_channels_last(channels_last)
 
     def model_config(self) -> dict:
@@ -265,13 +278,15 @@ class SMDModule(StereoModule):
         if self.hparams.edge_weight != 1.0:
             weight = edge_weights(batch["disparity"], batch["valid"], self.hparams.edge_weight)
         nll = mixture_nll(out.mixture, batch["disparity"], batch["valid"], weight)
+        backbone_err = disparity_errors(out.backbone.disparity.detach(), batch["disparity"], batch["valid"])
+        extra = {"nll": nll.detach(), "backbone_epe": backbone_err["epe"],
+                 "uncertainty": out.uncertainty.detach().mean()}
+        if self.hparams.freeze_backbone:  # the backbone is fixed: the head's NLL is the whole loss
+            return nll, out.disparity, extra
         weights = coarse_to_fine_weights(self.progress, len(out.backbone.pyramid), self.hparams.scale_weight_width)
         l1, _ = multiscale_l1_loss(out.backbone.pyramid, batch["disparity"], batch["valid"], weights)
         match_l1, _ = multiscale_l1_loss([out.backbone.matched], batch["disparity"], batch["valid"], [1.0])
         l1 = l1 + self.hparams.match_weight * match_l1
-        backbone_err = disparity_errors(out.backbone.disparity.detach(), batch["disparity"], batch["valid"])
-        extra = {"nll": nll.detach(), "backbone_epe": backbone_err["epe"],
-                 "uncertainty": out.uncertainty.detach().mean()}
         return nll + self.hparams.backbone_weight * l1, out.disparity, extra
 
 

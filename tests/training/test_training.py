@@ -334,6 +334,37 @@ def test_smd_loss_decreases_on_one_batch(one_thread):
     assert pred.shape == batch["disparity"].shape and "nll" in extra
 
 
+def test_smd_frozen_backbone_trains_the_head_alone(one_thread, tmp_path):
+    """freeze_backbone: SMD = the given DispNet weights (unchanged by training) + a head learnt by the NLL alone."""
+    from stereonet.models.dispnet import DispNet
+    from stereonet.models.weights import save_weights
+
+    torch.manual_seed(0)
+    config = {"max_disp": 16, "channels": 8, "aggregation": "2d", "upsample": "select", "matching": "census"}
+    path = tmp_path / "dispnet.pt"
+    save_weights(path, "dispnet", config, DispNet(**config))
+    module = SMDModule(**config, init_backbone=str(path), freeze_backbone=True, lr=3e-3)
+    start = {k: v.clone() for k, v in module.model.backbone.state_dict().items()}
+    batch = _one_batch()
+    opt = torch.optim.Adam([p for p in module.parameters() if p.requires_grad], lr=3e-3)
+    losses = []
+    for _ in range(20):
+        loss, _, extra = module.compute(batch)
+        losses.append(float(loss.detach()))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert losses[-1] < 0.8 * losses[0]
+    torch.testing.assert_close(losses[-1], float(extra["nll"]))  # the NLL is the whole loss
+    for k, v in module.model.backbone.state_dict().items():
+        assert torch.equal(v, start[k]), k
+    assert all(p.grad is None for p in module.model.backbone.parameters())
+    with pytest.raises(ValueError, match="freeze_backbone: needs init_backbone"):
+        SMDModule(**config, freeze_backbone=True)
+    with pytest.raises(ValueError, match="init_backbone: .*expected"):
+        SMDModule(**{**config, "matching": "learned"}, init_backbone=str(path))
+
+
 def test_atomic_checkpoint_keeps_old_file_on_failure(tmp_path, monkeypatch):
     io = AtomicCheckpointIO()
     path = tmp_path / "last.ckpt"
