@@ -30,6 +30,10 @@ CONES = bundled_data_dir() / "middlebury2003" / "cones"
 SIZE = (94, 112)  # (H, W): the cones pair / 4, rounded (not the traced 96 x 128, not a multiple of 16)
 MAX_DISP = 24  # cones' largest disparity at this scale is ~16 px
 TOL_PX = 1e-3
+GRAPH_TOL = {"siamese": 1e-3, "dispnet": 1e-2, "smd": 1e-2}
+"""Bound on the export check's own torch-vs-graph difference: float32 runtimes differ by ~1e-4 px; the census DispNet
+(dispnet.pt, and smd.pt's backbone) by up to ~5e-3 px on the full-size pair (in the padded border rows), still far
+below a tracing error (pixels), which the export's own check rejects."""
 LEARNED = ("dispnet", "smd", "siamese", "siamese-sgm", "siamese-census-sgm")
 
 
@@ -55,9 +59,7 @@ def onnx_files(tmp_path_factory, threads) -> dict[str, Path]:
     for network in ("siamese", "dispnet", "smd"):
         report = export.export_onnx(network, folder / f"{network}.onnx", max_disp=None)
         assert report.network == network and report.methods == methods_of(network)
-        # float32 runtimes differ by ~1e-4 px; the census DispNet by up to ~5e-3 px on the full-size pair (in the
-        # padded border rows), still far below a tracing error (pixels), which the export's own check rejects
-        assert report.graph_difference <= (1e-2 if network == "dispnet" else 1e-3)
+        assert report.graph_difference <= GRAPH_TOL[network]
         files[network] = report.path
     return files
 
@@ -153,7 +155,7 @@ def test_metadata_says_what_the_runtime_needs(onnx_files):
     assert meta["stereonet.network"] == "smd" and meta["stereonet.method"] == "smd"
     assert meta["stereonet.max_disp"] == "96" and meta["stereonet.stride"] == "16"
     assert "standardises" in meta["stereonet.normalisation"]
-    assert float(meta["stereonet.verified_max_abs_diff"]) <= 1e-3
+    assert float(meta["stereonet.verified_max_abs_diff"]) <= GRAPH_TOL["smd"]
     graph = onnx.load(str(onnx_files["smd"])).graph
     assert [i.name for i in graph.input] == ["left", "right", "grid"]
     assert graph.input[0].type.tensor_type.shape.dim[3].dim_param == "width"  # dynamic axes

@@ -43,8 +43,12 @@ def test_configs_exist():
 
 @pytest.mark.parametrize("config", CONFIGS, ids=[p.stem for p in CONFIGS])
 def test_every_config_survives_fast_dev_run(config, tmp_path, monkeypatch):
+    import yaml
+
+    init = yaml.safe_load(config.read_text())["model"].get("init_args", {}).get("init_backbone")
+    start = ["--model.init_backbone", str(config.parents[1] / init)] if init else []  # relative to the repository
     monkeypatch.chdir(tmp_path)
-    cli = _cli(["--config", str(config), *TINY, "--trainer.fast_dev_run", "true"])
+    cli = _cli(["--config", str(config), *TINY, *start, "--trainer.fast_dev_run", "true"])
     cli.trainer.fit(cli.model, datamodule=cli.datamodule)
     assert cli.trainer.state.finished
     assert cli.trainer.global_step == 1
