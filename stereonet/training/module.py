@@ -165,9 +165,11 @@ class StereoModule(L.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
-def _with_matching(config: dict, matching: str) -> dict:
-    """A DispNet/SMD network config with ``matching`` added unless it is the default "learned" (so the weight files of
-    learned-feature networks stay as they were; files without the key are "learned")."""
+def _dispnet_config(max_disp: int, channels: int, aggregation: str, upsample: str, matching: str) -> dict:
+    """A DispNet network config (also SMD's backbone part), with ``matching`` only when it is not the default
+    "learned" (so the weight files of learned-feature networks stay as they were; files without the key are
+    "learned")."""
+    config = {"max_disp": max_disp, "channels": channels, "aggregation": aggregation, "upsample": upsample}
     return config if matching == "learned" else {**config, "matching": matching}
 
 
@@ -197,8 +199,7 @@ class DispNetModule(StereoModule):
 
     def model_config(self) -> dict:
         hp = self.hparams
-        return _with_matching({"max_disp": hp.max_disp, "channels": hp.channels, "aggregation": hp.aggregation,
-                               "upsample": hp.upsample}, hp.matching)
+        return _dispnet_config(hp.max_disp, hp.channels, hp.aggregation, hp.upsample, hp.matching)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
@@ -254,8 +255,7 @@ class SMDModule(StereoModule):
                             upsample=upsample, matching=matching)
         if init_backbone:
             backbone, info = load_weights(init_backbone, expected="dispnet")
-            wanted = _with_matching({"max_disp": max_disp, "channels": channels, "aggregation": aggregation,
-                                     "upsample": upsample}, matching)
+            wanted = _dispnet_config(max_disp, channels, aggregation, upsample, matching)
             if dict(info["config"]) != wanted:
                 raise ValueError(f"init_backbone: {init_backbone!r} holds a DispNet with config {info['config']}, "
                                  f"expected {wanted}")
@@ -266,8 +266,8 @@ class SMDModule(StereoModule):
 
     def model_config(self) -> dict:
         hp = self.hparams
-        return _with_matching({"max_disp": hp.max_disp, "channels": hp.channels, "hidden": list(hp.hidden),
-                               "aggregation": hp.aggregation, "upsample": hp.upsample}, hp.matching)
+        return {**_dispnet_config(hp.max_disp, hp.channels, hp.aggregation, hp.upsample, hp.matching),
+                "hidden": list(hp.hidden)}
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
