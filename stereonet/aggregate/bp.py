@@ -9,7 +9,7 @@ IJCV 2006:
   (:func:`~stereonet.aggregate.mrf.truncated_linear_min_convolution`), messages normalised to min 0;
 * synchronous ("flooding") updates of all messages of the whole grid at once: on CPU (``backend="auto"``)
   numba kernels on a row-major ``(B, H, D, W)`` copy, vectorised along rows, the iterations of a level run
-  as a wavefront over the rows (parallel across iterations), tested equal to the vectorised torch
+  as a wavefront over the rows (two strips swept towards each other, one thread each), tested equal to the vectorised torch
   reference (``backend="torch"``);
 * coarse-to-fine: data costs summed over 2×2 blocks per level, messages of a coarse level initialise the
   four children at the next finer level, so few iterations per level propagate information far.

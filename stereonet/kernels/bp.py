@@ -4,7 +4,8 @@ Row-major layout ``(B, H, D, W)``: one grid row ``(b, y)`` is ``D`` contiguous r
 step is an elementwise loop along ``x`` that LLVM vectorises (8 float32 lanes on AVX2): the distance
 transform's forward pass ``f[d] = min(h[d], f[d-1] + s)`` and backward pass run over ``d`` with all the
 row's pixels at once. The iterations of a level run as a wavefront over the rows (see :func:`bp_level`), so
-the grid streams from memory once per level rather than once per iteration. It mirrors the torch reference
+the grid streams from memory once per level rather than once per iteration; two threads sweep two strips of rows
+towards each other and wait for each other only where they meet. It mirrors the torch reference
 ``bp._run_level`` (synchronous updates, linear distance transform, truncation, min-normalisation) in the
 cost's dtype (float32 scratch for float32 costs).
 
@@ -115,9 +116,30 @@ def _send_row(total, exclude, y_src, k_src, slopes, k, dest, y_dest, k_dest, out
 
 
 def ring_shape(iterations: int, rows_per_step: int, depth: int, width: int) -> tuple[int, int, int, int, int]:
-    """Shape of :func:`bp_level`'s ``rings`` scratch: one ring of ``4 K`` rows of the four message slots per
-    intermediate iteration (at least one ring, so the shape is never empty)."""
-    return (max(iterations - 1, 1), 4 * max(1, rows_per_step), 4, depth, width)
+    """Shape of :func:`bp_level`'s ``rings`` scratch: per intermediate iteration, one ring of ``R = 4 K`` rows of the
+    four message slots for each of the two strips of rows (``2 R`` rows; at least one set, so the shape is never
+    empty)."""
+    return (max(iterations - 1, 1), 2 * 4 * max(1, rows_per_step), 4, depth, width)
+
+
+@njit(cache=True, fastmath=False)
+def _strips(H, K):  # pragma: no cover - compiled
+    """The two strips of :func:`bp_level`'s wavefront: ``(n_blocks, nA, nB, M)``: ``n_blocks`` blocks of ``K`` rows,
+    the top strip blocks ``0 .. nA - 1`` (rows ``0 .. M - 1``, swept downwards), the bottom strip the other ``nB``
+    (swept upwards from the last block), ``nA - nB`` 0 or 1."""
+    n_blocks = (H + K - 1) // K
+    nA = (n_blocks + 1) // 2
+    return n_blocks, nA, n_blocks - nA, min(nA * K, H)
+
+
+@njit(cache=True, fastmath=False)
+def _strip_block(t, j, strip, n_blocks, nA, nB):  # pragma: no cover - compiled
+    """The block that iteration (stage) ``j`` of ``strip`` (0 top, 1 bottom) updates at step ``t``, or -1: the strip's
+    ``t - 2 j``-th block in its own sweep order."""
+    local = t - 2 * j
+    if strip == 0:
+        return local if 0 <= local < nA else -1
+    return n_blocks - 1 - local if 0 <= local < nB else -1
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -138,41 +160,73 @@ def bp_level(cost, start, final, rings, slopes, iterations, rows_per_step=ROWS_P
     owns), so the lag of two blocks keeps it exactly synchronous for any ``K >= 1``: iteration ``j`` at block
     ``b`` needs iteration ``j - 1``'s writes into the block, made from blocks ``b - 1 .. b + 1`` (done at steps up
     to ``t - 1``), and what it writes (the block and one row either side) never meets a row that another
-    iteration reads or writes in the same step; so the blocks of one step run in parallel, and every ``K``
+    iteration reads or writes in the same step; so the blocks of one step could run in parallel, and every ``K``
     gives the same bits. The same lag bounds what a ring must hold: when iteration ``j`` writes rows up to
     ``(b + 1) K``, iteration ``j + 1`` has consumed every row before ``(b - 2) K``, so ``3 K + 1 <= R`` rows are
     live; and ``final`` can overwrite ``start`` because iteration ``J - 1`` writes rows that iteration 0 read at
     least one step earlier (``J >= 2``). So one whole set of messages is held instead of two, and the sets in
-    between stay in cache. ``K = 1`` keeps the most in cache; a larger ``K`` has ``K``
-    times fewer steps, each ending at a barrier where the threads wait for each other (the cost that grows
-    when other work shares the cores).
+    between stay in cache. ``K = 1`` keeps the most in cache.
+
+    Threads: the blocks are split into two strips (:func:`_strips`) swept towards each other, the top one downwards
+    and the bottom one upwards (the lag argument holds in either direction), each with its own half of every ring.
+    Until a strip reaches its last block no row it touches neighbours the other strip, so each strip runs its steps
+    alone, without a barrier; the last ``~2 J`` steps, where the two meet, run one step at a time (a barrier per
+    step). The block counts differ by at most one, so the meeting rows' writes precede their reads by at least one
+    step, as within a strip. One thread per strip: on a shared machine a thread that loses its core delays the
+    other only where they meet, instead of at every row (a barrier per row cost bp up to 23x its idle time beside
+    another two-thread job; docs/experiments/bp_phases.txt).
     """
     B, H, D, W = cost.shape
     K = max(1, rows_per_step)
-    R = rings.shape[1]
-    n_blocks = (H + K - 1) // K
-    last = iterations - 1
+    R = rings.shape[1] // 2
+    n_blocks, nA, nB, M = _strips(H, K)
+    split = max(0, min(nA, nB) - 1)  # steps before either strip's last block: the strips never meet
     for b in range(B):
-        for t in range(n_blocks + 2 * (iterations - 1)):
-            for j in prange(iterations):
-                blk = t - 2 * j
-                if 0 <= blk < n_blocks:
-                    for y in range(blk * K, min(blk * K + K, H)):
-                        if j == 0 and j == last:
-                            _update_row(cost, start[b], H, final[b], H, slopes, b, y)
-                        elif j == 0:
-                            _update_row(cost, start[b], H, rings[0], R, slopes, b, y)
-                        elif j == last:
-                            _update_row(cost, rings[j - 1], R, final[b], H, slopes, b, y)
-                        else:
-                            _update_row(cost, rings[j - 1], R, rings[j], R, slopes, b, y)
+        for strip in prange(2):  # each strip alone: no barrier until its last block
+            for t in range(split):
+                for j in range(iterations):
+                    _level_block(cost, start, final, rings, R, M, slopes, iterations, b, j,
+                                 _strip_block(t, j, strip, n_blocks, nA, nB), K)
+        for t in range(split, nA + 2 * (iterations - 1)):  # the meeting rows: one barrier per step
+            for item in prange(2 * iterations):
+                j = item % iterations
+                _level_block(cost, start, final, rings, R, M, slopes, iterations, b, j,
+                             _strip_block(t, j, item // iterations, n_blocks, nA, nB), K)
 
 
 @njit(cache=True, fastmath=False)
-def _update_row(cost, src, src_rows, dst, dst_rows, slopes, b, y):  # pragma: no cover - compiled
+def _level_block(cost, start, final, rings, R, M, slopes, iterations, b, j, blk, K):  # pragma: no cover - compiled
+    """Iteration ``j`` of :func:`bp_level` on block ``blk`` (nothing when ``blk < 0``): rows ``blk K .. blk K + K - 1``
+    read ``start`` or ring ``j - 1`` and write ring ``j`` or ``final`` (the rings of the strip each row is in: rows
+    from ``M`` on use the second half)."""
+    if blk < 0:
+        return
+    H = cost.shape[1]
+    last = iterations - 1
+    for y in range(blk * K, min(blk * K + K, H)):
+        if j == 0 and j == last:
+            _update_row(cost, start[b], H, H, final[b], H, H, slopes, b, y)
+        elif j == 0:
+            _update_row(cost, start[b], H, H, rings[0], R, M, slopes, b, y)
+        elif j == last:
+            _update_row(cost, rings[j - 1], R, M, final[b], H, H, slopes, b, y)
+        else:
+            _update_row(cost, rings[j - 1], R, M, rings[j], R, M, slopes, b, y)
+
+
+@njit(cache=True, fastmath=False)
+def _row_index(y, rows, split):  # pragma: no cover - compiled
+    """Where grid row ``y`` lives in a set of ``rows`` rows: ``y`` itself in a whole grid (``rows = split = H``); in
+    a pair of rings of ``rows`` rows each, ``y % rows`` in the first (rows above ``split``) or the second."""
+    return y % rows + (rows if y >= split else 0)
+
+
+@njit(cache=True, fastmath=False)
+def _update_row(cost, src, src_rows, src_split, dst, dst_rows, dst_split, slopes, b, y):  # pragma: no cover - compiled
     """One synchronous update of row ``(b, y)``: read its incoming messages in ``src``, write the four
     outgoing ones into ``dst`` (``src``/``dst`` ``(rows, 4, D, W)``, [from left, right, up, down]; grid row ``y``
-    is row ``y % src_rows`` / ``y % dst_rows``: a whole grid, or a ring).
+    is row :func:`_row_index` ``(y, src_rows, src_split)`` / ``(y, dst_rows, dst_split)``: a whole grid, or a pair
+    of rings).
 
     Row ``y`` writes ``dst`` from-left/from-right of its own row, from-up of row ``y + 1`` and from-down of
     row ``y - 1``: no two rows write the same slot. It also zeroes the slots of its own row that no neighbour
@@ -183,8 +237,8 @@ def _update_row(cost, src, src_rows, dst, dst_rows, slopes, b, y):  # pragma: no
     out = np.empty((D, W), dtype=cost.dtype)
     lowest = np.empty((2, W), dtype=cost.dtype)
     scratch = np.empty((2, W), dtype=cost.dtype)
-    ys = y % src_rows
-    yd = y % dst_rows
+    ys = _row_index(y, src_rows, src_split)
+    yd = _row_index(y, dst_rows, dst_split)
     for d in range(D):
         t = total[d]
         cd = cost[b, y, d]
@@ -206,9 +260,11 @@ def _update_row(cost, src, src_rows, dst, dst_rows, slopes, b, y):  # pragma: no
         _send_row(total, src, ys, 1, slopes, 0, dst, yd, 0, out, lowest, scratch, b, y, 0, 1, W - 1)
         _send_row(total, src, ys, 0, slopes, 1, dst, yd, 1, out, lowest, scratch, b, y, 1, 0, W - 1)
     if y + 1 < H:
-        _send_row(total, src, ys, 3, slopes, 2, dst, (y + 1) % dst_rows, 2, out, lowest, scratch, b, y, 0, 0, W)
+        _send_row(total, src, ys, 3, slopes, 2, dst, _row_index(y + 1, dst_rows, dst_split), 2, out, lowest, scratch,
+                  b, y, 0, 0, W)
     if y >= 1:
-        _send_row(total, src, ys, 2, slopes, 3, dst, (y - 1) % dst_rows, 3, out, lowest, scratch, b, y, 0, 0, W)
+        _send_row(total, src, ys, 2, slopes, 3, dst, _row_index(y - 1, dst_rows, dst_split), 3, out, lowest, scratch,
+                  b, y, 0, 0, W)
 
 
 @njit(parallel=True, cache=True, fastmath=False)
@@ -375,24 +431,39 @@ def bp_finest(cost, coarse, rings, slopes, iterations, beliefs, labels, scale, r
     """
     B, H, D, W = cost.shape
     K = max(1, rows_per_step)
-    R = rings.shape[1]
-    n_blocks = (H + K - 1) // K
+    R = rings.shape[1] // 2
+    n_blocks, nA, nB, M = _strips(H, K)
     J = iterations
-    s = scale[0]
+    split = max(0, min(nA, nB) - 1)  # as bp_level: the strips run alone until their last blocks
     for b in range(B):
-        for t in range(n_blocks + 2 * J):
-            for j in prange(J + 1):
-                blk = t - 2 * j
-                if 0 <= blk < n_blocks:
-                    for y in range(blk * K, min(blk * K + K, H)):
-                        if j == J:
-                            bel = beliefs[b, y]
-                            best = np.empty((2, W), dtype=bel.dtype)
-                            lab = np.empty((2, W), dtype=np.int64)
-                            _beliefs_row(cost, rings[J - 1][y % R], b, y, s, bel, best, lab, labels[b, y])
-                        elif j == 0:
-                            src = np.empty((1, 4, D, W), dtype=cost.dtype)
-                            _upsample_row(coarse[b, y // 2].reshape(4 * D, coarse.shape[4]), src[0].reshape(4 * D, W))
-                            _update_row(cost, src, 1, rings[0], R, slopes, b, y)
-                        else:
-                            _update_row(cost, rings[j - 1], R, rings[j], R, slopes, b, y)
+        for strip in prange(2):
+            for t in range(split):
+                for j in range(J + 1):
+                    _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, labels, scale, b, j,
+                                  _strip_block(t, j, strip, n_blocks, nA, nB), K)
+        for t in range(split, nA + 2 * J):
+            for item in prange(2 * (J + 1)):
+                j = item % (J + 1)
+                _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, labels, scale, b, j,
+                              _strip_block(t, j, item // (J + 1), n_blocks, nA, nB), K)
+
+
+@njit(cache=True, fastmath=False)
+def _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, labels, scale, b, j, blk, K):  # pragma: no cover
+    """Stage ``j`` of :func:`bp_finest` on block ``blk`` (nothing when ``blk < 0``): an iteration (``j < J``; the
+    first one reads the upsampled coarse messages), or the beliefs and labels (``j == J``)."""
+    if blk < 0:
+        return
+    H, D, W = cost.shape[1], cost.shape[2], cost.shape[3]
+    for y in range(blk * K, min(blk * K + K, H)):
+        if j == J:
+            bel = beliefs[b, y]
+            best = np.empty((2, W), dtype=bel.dtype)
+            lab = np.empty((2, W), dtype=np.int64)
+            _beliefs_row(cost, rings[J - 1][_row_index(y, R, M)], b, y, scale[0], bel, best, lab, labels[b, y])
+        elif j == 0:
+            src = np.empty((1, 4, D, W), dtype=cost.dtype)
+            _upsample_row(coarse[b, y // 2].reshape(4 * D, coarse.shape[4]), src[0].reshape(4 * D, W))
+            _update_row(cost, src, 1, H, rings[0], R, M, slopes, b, y)
+        else:
+            _update_row(cost, rings[j - 1], R, M, rings[j], R, M, slopes, b, y)

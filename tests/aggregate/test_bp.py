@@ -133,6 +133,27 @@ def test_numba_equals_torch_on_odd_shapes(dtype):
         torch.testing.assert_close(a.energy, b.energy, rtol=1e-6, atol=1e-3)
 
 
+@pytest.mark.parametrize("rows_per_step", [1, 2])
+def test_two_strips_meet_exactly_at_every_height(rows_per_step, monkeypatch):
+    """The wavefront's two strips of rows (swept towards each other, synchronised only where they meet) give the
+    reference's beliefs for every small height: one block (the bottom strip empty), strips of equal or unequal block
+    counts, a last block cut short, and a pyramid level above (bp_finest) as well as a single level (bp_level)."""
+    from stereonet.kernels import bp as kernels
+
+    monkeypatch.setattr(kernels, "ROWS_PER_STEP", rows_per_step)
+    g = torch.Generator().manual_seed(5)
+    for height in (1, 2, 3, 4, 5, 6, 7, 9, 12):
+        cost = torch.rand(1, 6, height, 11, generator=g, dtype=torch.float64) * 4
+        wd = torch.rand(1, 1, height, 11, generator=g, dtype=torch.float64) * 2
+        for iterations in (1, 2, 3):
+            for levels in (1, 2):
+                kw = dict(iterations=iterations, levels=levels, weights_down=wd)
+                a = belief_propagation(cost, 0.6, 2.5, backend="numba", **kw)
+                b = belief_propagation(cost, 0.6, 2.5, backend="torch", **kw)
+                torch.testing.assert_close(a.beliefs, b.beliefs, rtol=1e-12, atol=1e-12,
+                                           msg=f"H={height} J={iterations} levels={levels}")
+
+
 @pytest.mark.parametrize("rows_per_step", [2, 3, 5, 64])
 def test_wavefront_blocks_of_rows_give_the_same_bits(rows_per_step):
     """bp_level's wavefront over blocks of K rows (H = 37: not a multiple of 2, 3 or 5; K = 64 > H: one block)
