@@ -99,7 +99,7 @@ class NetworkGraph(nn.Module):
             left, right = inputs
             return (net(left, right).disparity,)
         left, right, grid = inputs
-        mix = net.query(net.backbone(left, right), grid)
+        mix = net.query(net.backbone(left, right), grid, left=left)
         return mix.mu1, mix.mu2, mix.b1, mix.b2, mix.pi
 
 

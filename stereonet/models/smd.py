@@ -8,6 +8,13 @@ its disparity bilinearly, and a small MLP predicts a bimodal Laplacian mixture
 The output disparity is the mode with the higher density (a sharp choice at depth edges instead of an
 average of foreground and background), the uncertainty is that mode's scale ``b``. Because queries are
 continuous, the disparity can be produced at any output size, e.g. higher than the input.
+
+``context > 0`` also shows the head a neighbourhood of each query point (:func:`neighbourhood`): the backbone's
+disparity and the left image's standardised grey level at offsets ``0, ±1, ±2, ±4, ...`` (input pixels, up to
+``±context`` on each axis), each relative to the point's own value. A per-point head sees only the features and
+the disparity *at* the point, so at a blurred depth edge it cannot tell which disparities lie on either side
+or on which side of the image's intensity edge the point is; with the neighbourhood it can place each mode on
+one side. The samples are bilinear at continuous positions, so any output scale still works.
 """
 
 from __future__ import annotations
@@ -18,8 +25,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from stereonet.checks import StereoInputError
 from stereonet.models.dispnet import DispNet, DispNetOutput, run_padded
-from stereonet.models.layers import InputPadder
+from stereonet.models.layers import InputPadder, standardize_image
 
 MIN_SCALE = 0.05
 """Smallest Laplacian scale b in pixels: keeps the NLL bounded (b -> 0 would give -inf) and is finer than
@@ -71,24 +79,51 @@ def query_grid(batch: int, height: int, width: int, device=None, dtype=None) -> 
     return grid.unsqueeze(0).expand(batch, -1, -1, -1)
 
 
+def context_offsets(context: int) -> list[tuple[int, int]]:
+    """The (dx, dy) offsets in input pixels of a ``context`` neighbourhood, the centre left out: every pair of
+    ``0, ±1, ±2, ±4, ...`` up to ``±context`` (``[]`` for 0). ``context=4``: 7 x 7 - 1 = 48 offsets."""
+    steps = [0] + [s * k for k in (1 << i for i in range(max(int(context), 0).bit_length())) if k <= context
+                   for s in (-1, 1)]
+    steps.sort()
+    return [(dx, dy) for dy in steps for dx in steps if (dx, dy) != (0, 0)]
+
+
+def neighbourhood(maps: torch.Tensor, grid: torch.Tensor, offsets: list[tuple[int, int]]) -> torch.Tensor:
+    r"""Each channel of ``maps`` :math:`(B, C, H, W)` sampled (bilinear, border) at the query points ``grid``
+    :math:`(B, Hq, Wq, 2)` shifted by every ``(dx, dy)`` of ``offsets`` (pixels of ``maps``), minus its value at
+    the point itself: :math:`(B, C \cdot K, Hq, Wq)`, the C channels of offset 0 first, then offset 1, ..."""
+    h, w = maps.shape[-2:]
+    sample = lambda g: F.grid_sample(maps, g, mode="bilinear", padding_mode="border", align_corners=False)
+    centre = sample(grid)
+    return torch.cat([sample(grid + grid.new_tensor([2.0 * dx / w, 2.0 * dy / h])) - centre
+                      for dx, dy in offsets], dim=1)
+
+
 class SMDNet(nn.Module):
     """DispNet backbone + continuous bimodal mixture head.
 
     Args:
         max_disp, channels, aggregation, upsample, matching: as :class:`DispNet`.
         hidden: widths of the MLP's hidden layers.
+        context: reach in input pixels of the neighbourhood the head also sees (module doc; 0: the point only).
     """
 
     stride = DispNet.stride
 
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
-                 aggregation: str = "2d", upsample: str = "bilinear", matching: str = "learned") -> None:
+                 aggregation: str = "2d", upsample: str = "bilinear", matching: str = "learned",
+                 context: int = 0) -> None:
         super().__init__()
+        if isinstance(context, bool) or not isinstance(context, int) or context < 0:
+            raise ValueError(f"context: expected an integer >= 0 (pixels), got {context!r}")
         self.backbone = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation,
                                 upsample=upsample, matching=matching)
         self.max_disp = self.backbone.max_disp
+        self.context = context
+        self.offsets = context_offsets(context)
         c = self.backbone.channels
         in_ch = c // 2 + c + 2 * c + 1  # features at strides 1, 2, 4 + the backbone disparity
+        in_ch += 2 * len(self.offsets)  # + the neighbourhood's relative disparity and grey level
         layers: list[nn.Module] = []
         for width in hidden:
             layers += [nn.Conv2d(in_ch, width, 1), nn.LeakyReLU(0.1, inplace=True)]
@@ -96,18 +131,27 @@ class SMDNet(nn.Module):
         layers.append(nn.Conv2d(in_ch, 5, 1))
         self.mlp = nn.Sequential(*layers)  # a per-point MLP written as 1x1 convolutions
 
-    def query(self, backbone: DispNetOutput, grid: torch.Tensor, detach_anchor: bool = False) -> MixtureParams:
+    def query(self, backbone: DispNetOutput, grid: torch.Tensor, detach_anchor: bool = False,
+              left: torch.Tensor | None = None) -> MixtureParams:
         """Mixture at continuous points ``grid`` :math:`(B, Hq, Wq, 2)` (normalised, align_corners=False).
 
         Returned disparities are in pixels of the backbone's input resolution. The two modes are offsets from the
         backbone's disparity (the anchor); ``detach_anchor`` (training only, same values) stops the mixture's
-        gradient there, so that the head's loss reaches the backbone through its features only.
+        gradient there, so that the head's loss reaches the backbone through its features only. ``left``: the
+        backbone's left input :math:`(B, C, H, W)` in [0, 1], needed (only) when ``context > 0``.
         """
         sample = lambda x: F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
-        disp = sample(backbone.disparity.detach() if detach_anchor else backbone.disparity)  # Bx1xHqxWq
-        feats = [sample(backbone.features[s]) for s in (1, 2, 4)]
-        raw = self.mlp(torch.cat([*feats, disp / self.max_disp], dim=1))  # Bx5xHqxWq
+        anchor = backbone.disparity.detach() if detach_anchor else backbone.disparity
+        disp = sample(anchor)  # Bx1xHqxWq
         unit = self.backbone.disp_unit
+        inputs = [sample(backbone.features[s]) for s in (1, 2, 4)] + [disp / self.max_disp]
+        if self.offsets:
+            if left is None or left.shape[-2:] != anchor.shape[-2:]:
+                raise StereoInputError(f"left: expected the backbone's left input of size {tuple(anchor.shape[-2:])} "
+                                       f"(context {self.context}), got {None if left is None else tuple(left.shape)}")
+            maps = torch.cat([anchor / unit, standardize_image(left, grey=True)], dim=1)
+            inputs.append(neighbourhood(maps, grid, self.offsets))
+        raw = self.mlp(torch.cat(inputs, dim=1))  # Bx5xHqxWq
         return MixtureParams(
             mu1=disp + raw[:, 0:1] * unit,
             mu2=disp + raw[:, 1:2] * unit,
@@ -125,7 +169,7 @@ class SMDNet(nn.Module):
         b, _, h, w = left.shape
         hq, wq = output_size if output_size is not None else (h, w)
         grid = query_grid(b, hq, wq, device=left.device, dtype=left.dtype)
-        mix = self.query(backbone, grid, detach_anchor)
+        mix = self.query(backbone, grid, detach_anchor, left)
         scale = wq / w
         if scale != 1.0:
             mix = MixtureParams(mix.mu1 * scale, mix.mu2 * scale, mix.b1 * scale, mix.b2 * scale, mix.pi)
@@ -169,4 +213,5 @@ def predict_smd(net: SMDNet, left: torch.Tensor, right: torch.Tensor, upsample: 
     backbone, padder = run_padded(net.backbone, left, right)
     b, _, h, w = left.shape
     grid = padded_query_grid(b, h, w, padder, upsample, device=left.device, dtype=left.dtype)
-    return mixture_outputs(net.query(backbone, grid), grid.shape[2] / w, with_mixture)
+    left_p = padder.pad(left)[0] if net.offsets else None  # (run_padded checked the pair)
+    return mixture_outputs(net.query(backbone, grid, left=left_p), grid.shape[2] / w, with_mixture)

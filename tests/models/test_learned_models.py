@@ -20,7 +20,14 @@ from stereonet.models.siamese import (
     siamese_cost_volume,
     siamese_pair_loss,
 )
-from stereonet.models.smd import MixtureParams, SMDNet, predict_smd, query_grid
+from stereonet.models.smd import (
+    MixtureParams,
+    SMDNet,
+    context_offsets,
+    neighbourhood,
+    predict_smd,
+    query_grid,
+)
 from stereonet.models.weights import load_weights, save_weights
 
 
@@ -215,6 +222,53 @@ def test_smd_queries_at_higher_resolution_and_uncertainty():
     assert (unc > 0).all() and (unc2 > 0).all()
     # values are in pixels of the output grid: the 2x map is about twice the 1x one
     assert torch.allclose(disp2[..., ::2, ::2].mean(), 2 * disp.mean(), rtol=0.2)
+
+
+def test_context_offsets():
+    assert context_offsets(0) == []
+    assert sorted(context_offsets(1)) == sorted((dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+    four = context_offsets(4)
+    assert len(four) == 48 and len(set(four)) == 48 and (0, 0) not in four
+    assert {dx for dx, _ in four} == {-4, -2, -1, 0, 1, 2, 4} == {dy for _, dy in four}
+    assert {dx for dx, _ in context_offsets(5)} == {dx for dx, _ in four}  # powers of two up to the reach
+
+
+def test_neighbourhood_samples_shifted_pixels_relative_to_the_centre():
+    torch.manual_seed(0)
+    maps = torch.rand(2, 3, 9, 11, dtype=torch.float64)
+    grid = query_grid(2, 9, 11, dtype=torch.float64)  # pixel centres: bilinear samples are the pixels themselves
+    offsets = [(1, 0), (0, -2), (-2, 1)]
+    got = neighbourhood(maps, grid, offsets)
+    assert got.shape == (2, 9, 9, 11)
+    for k, (dx, dy) in enumerate(offsets):
+        part = got[:, 3 * k:3 * k + 3]
+        want = torch.roll(maps, shifts=(-dy, -dx), dims=(2, 3)) - maps  # maps[y + dy, x + dx] - maps[y, x]
+        inner = (slice(None), slice(None), slice(2, -2), slice(2, -2))
+        torch.testing.assert_close(part[inner], want[inner], rtol=0, atol=1e-12)
+    # at the border the samples clamp (padding "border"): the left column looking left sees itself
+    assert float(neighbourhood(maps, grid, [(-1, 0)])[..., 0].abs().max()) < 1e-12
+
+
+def test_smd_context_head_sees_the_image_around_each_point():
+    torch.manual_seed(0)
+    left, right = torch.rand(1, 3, 32, 48), torch.rand(1, 3, 32, 48)
+    with pytest.raises(ValueError, match="context"):
+        SMDNet(max_disp=16, channels=8, context=-1)
+    plain, ctx = SMDNet(max_disp=16, channels=8).eval(), SMDNet(max_disp=16, channels=8, context=2).eval()
+    assert ctx.mlp[0].in_channels == plain.mlp[0].in_channels + 2 * 24
+    grid = query_grid(1, 32, 48)
+    with torch.no_grad():
+        backbone = ctx.backbone(left, right)
+        other = left.clone()
+        other[..., 10:20, 10:20] = left[..., 10:20, 10:20].transpose(-1, -2)  # same pixels: same mean and std
+        a, b = ctx.query(backbone, grid, left=left), ctx.query(backbone, grid, left=other)
+        changed = (a.pi - b.pi).abs()[0, 0] > 1e-6
+        assert changed[9:21, 9:21].any() and not changed[:6].any()  # only points whose neighbourhood changed
+        with pytest.raises(StereoInputError, match="left: expected the backbone's left input"):
+            ctx.query(backbone, grid)
+        assert torch.equal(plain.query(backbone, grid).pi, plain.query(backbone, grid, left=other).pi)
+    disp, unc = predict_smd(ctx, left[..., :30, :45], right[..., :30, :45], upsample=2.0)  # padded, any scale
+    assert disp.shape == unc.shape == (1, 1, 60, 90) and bool(torch.isfinite(disp).all())
 
 
 def test_smd_stateless_same_structure():

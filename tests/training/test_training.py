@@ -338,8 +338,10 @@ def test_smd_loss_decreases_on_one_batch(one_thread):
     assert pred.shape == batch["disparity"].shape and "nll" in extra
 
 
-def test_smd_frozen_backbone_trains_the_head_alone(one_thread, tmp_path):
-    """freeze_backbone: SMD = the given DispNet weights (unchanged by training) + a head learnt by the NLL alone."""
+@pytest.mark.parametrize("context", [0, 2])
+def test_smd_frozen_backbone_trains_the_head_alone(one_thread, tmp_path, context):
+    """freeze_backbone: SMD = the given DispNet weights (unchanged by training) + a head learnt by the NLL alone
+    (with and without the head's neighbourhood)."""
     from stereonet.models.dispnet import DispNet
     from stereonet.models.weights import save_weights
 
@@ -347,7 +349,8 @@ def test_smd_frozen_backbone_trains_the_head_alone(one_thread, tmp_path):
     config = {"max_disp": 16, "channels": 8, "aggregation": "2d", "upsample": "select", "matching": "census"}
     path = tmp_path / "dispnet.pt"
     save_weights(path, "dispnet", config, DispNet(**config))
-    module = SMDModule(**config, init_backbone=str(path), freeze_backbone=True, lr=3e-3)
+    module = SMDModule(**config, init_backbone=str(path), freeze_backbone=True, lr=3e-3, context=context)
+    assert module.model_config().get("context", 0) == context  # (files without the key: 0)
     start = {k: v.clone() for k, v in module.model.backbone.state_dict().items()}
     batch = _one_batch()
     first, final = _fit(lambda: module.compute(batch)[0], [p for p in module.parameters() if p.requires_grad], 20, 3e-3)
