@@ -97,6 +97,28 @@ def test_smd_upsample_and_downscale_to_range_on_onnx(cones, onnx_files, threads)
         assert float((got.disparity - ref.disparity).abs().max()) <= TOL_PX
 
 
+def test_smd_head_with_context_exports_at_any_size(cones, tmp_path, threads):
+    """An SMD head with a neighbourhood (``context``) steps one pixel in the coordinates of the input's own size:
+    the exported graph follows the size it is run at (a step baked in at the traced size moved the export check's
+    pair by 0.67 px)."""
+    from stereonet.models.smd import SMDNet
+    from stereonet.models.weights import save_weights
+
+    torch.manual_seed(0)
+    config = {"max_disp": 32, "channels": 8, "aggregation": "2d", "upsample": "select", "matching": "census",
+              "hidden": [16], "context": 4}
+    save_weights(tmp_path / "ctx.pt", "smd", config, SMDNet(**{**config, "hidden": (16,)}))
+    report = export.export_onnx("smd", tmp_path / "ctx.onnx", checkpoint=tmp_path / "ctx.pt")
+    assert report.graph_difference <= 1e-3
+    left, right = cones
+    for options in ({"upsample": 2.0}, {}):
+        ref = matchers.match("smd", left, right, MAX_DISP, checkpoint=str(tmp_path / "ctx.pt"), **options)
+        got = matchers.match("smd", left, right, MAX_DISP, backend="onnx", onnx_model=str(tmp_path / "ctx.onnx"),
+                             **options)
+        assert float((got.disparity - ref.disparity).abs().max()) <= TOL_PX
+        assert float((got.uncertainty - ref.uncertainty).abs().max()) <= TOL_PX
+
+
 def test_torch_backend_is_the_plain_network(cones, threads):
     """backend='torch' runs the network exactly as predict_disparity / predict_smd do."""
     from stereonet.matchers.learned import load_network

@@ -93,10 +93,11 @@ def neighbourhood(maps: torch.Tensor, grid: torch.Tensor, offsets: list[tuple[in
     :math:`(B, Hq, Wq, 2)` shifted by every ``(dx, dy)`` of ``offsets`` (pixels of ``maps``), minus its value at
     the point itself: :math:`(B, C \cdot K, Hq, Wq)`, the C channels of offset 0 first, then offset 1, ..."""
     h, w = maps.shape[-2:]
+    one = grid.new_ones(())  # (an exported graph traces h, w as sizes: the step follows the input's size)
+    step = torch.stack([2.0 / (one * w), 2.0 / (one * h)])  # one pixel in normalised coordinates, (x, y)
     sample = lambda g: F.grid_sample(maps, g, mode="bilinear", padding_mode="border", align_corners=False)
     centre = sample(grid)
-    return torch.cat([sample(grid + grid.new_tensor([2.0 * dx / w, 2.0 * dy / h])) - centre
-                      for dx, dy in offsets], dim=1)
+    return torch.cat([sample(grid + step * grid.new_tensor([dx, dy])) - centre for dx, dy in offsets], dim=1)
 
 
 class SMDNet(nn.Module):
