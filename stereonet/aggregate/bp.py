@@ -41,7 +41,7 @@ from stereonet.aggregate.mrf import (
     truncated_linear_min_convolution,
 )
 from stereonet.checks import StereoInputError, check_cost_volume, check_finite
-from stereonet.kernels import use_numba
+from stereonet.kernels import empty_array, use_numba
 
 
 class BPResult(NamedTuple):
@@ -102,7 +102,7 @@ def _run_level_numba(cost: np.ndarray, start: np.ndarray, slope_array: np.ndarra
     """
     from stereonet.kernels.bp import bp_level
 
-    final = start if iterations >= 2 else np.empty_like(start)
+    final = start if iterations >= 2 else empty_array(start.shape, start.dtype)
     rings, k = _wavefront_rings(iterations, cost.shape[2], cost.shape[3], cost.dtype)
     bp_level(cost, start, final, rings, slope_array, int(iterations), k)
     return final
@@ -114,7 +114,7 @@ def _wavefront_rings(sets: int, depth: int, width: int, dtype) -> tuple[np.ndarr
     from stereonet.kernels import bp as kernels
 
     k = int(kernels.ROWS_PER_STEP)
-    return np.empty(kernels.ring_shape(sets, k, depth, width), dtype=dtype), k
+    return empty_array(kernels.ring_shape(sets, k, depth, width), dtype), k
 
 
 FIXED_POINT_LIMIT = 32000
@@ -159,7 +159,7 @@ def _to_fixed(x: np.ndarray, scale: int) -> np.ndarray:
     parallel kernel :func:`stereonet.kernels.bp.round_rows`: the same values as ``np.rint(x * np.float32(scale))``."""
     from stereonet.kernels.bp import round_rows
 
-    out = np.empty(x.shape, dtype=np.int16)
+    out = empty_array(x.shape, np.int16)
     rows = (-1,) + x.shape[-3:]
     round_rows(x.reshape(rows), np.float32(scale), out.reshape(rows))
     return out
@@ -255,10 +255,10 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             maxima = [_largest(cost)] + [float(c.max()) for c in costs[1:]]
             scale, fixed = fixed_point_plan(maxima, slope_arrays)
         if fixed[0]:  # rounded straight from the strided view: no float row-major copy of the finest level
-            costs[0] = np.empty((B, H, D, W), dtype=np.int16)
+            costs[0] = empty_array((B, H, D, W), np.int16)
             round_rows(rows, np.float32(scale), costs[0])
         else:
-            costs[0] = np.empty((B, H, D, W), dtype=rows.dtype)
+            costs[0] = empty_array((B, H, D, W), rows.dtype)
             torch.from_numpy(costs[0]).copy_(cost.permute(0, 2, 1, 3))
         del rows
         for level in range(levels):
@@ -274,9 +274,9 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             c = costs[level]
             shape = c.shape[:2] + (4,) + c.shape[2:]
             if result is None:
-                start = np.zeros(shape, dtype=c.dtype)
+                start = empty_array(shape, c.dtype, zero=True)
             else:
-                start = np.empty(shape, dtype=c.dtype)
+                start = empty_array(shape, c.dtype)
                 src = _in_dtype(result, c.dtype, scale)
                 upsample2(src.reshape(src.shape[:2] + (-1, src.shape[-1])), start.reshape(shape[:2] + (-1, shape[-1])))
                 del src
@@ -286,10 +286,10 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
         # fixed point: beliefs back in cost units (1/s is a power of two: exact)
         out_dtype = np.dtype(np.float32) if fixed[0] else costs[0].dtype
         belief_scale = np.array([1.0 / scale if fixed[0] else 1.0], dtype=out_dtype)
-        labels_rows = np.empty((B, H, W), dtype=np.int64)
+        labels_rows = empty_array((B, H, W), np.int64)
         if result is None:  # one level: from zero messages, the beliefs written over the final messages (a view)
-            result = _run_level_numba(costs[0], np.zeros((B, H, 4, D, W), dtype=costs[0].dtype), slope_arrays[0],
-                                      iterations)
+            zero = empty_array((B, H, 4, D, W), costs[0].dtype, zero=True)
+            result = _run_level_numba(costs[0], zero, slope_arrays[0], iterations)
             beliefs_argmin(costs[0], result, labels_rows, belief_scale)
             beliefs_rows = beliefs_view(result, out_dtype)
             del result
@@ -297,7 +297,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             coarse = _in_dtype(result, costs[0].dtype, scale)
             del result
             rings, k = _wavefront_rings(iterations + 1, D, W, costs[0].dtype)
-            beliefs_rows = np.empty((B, H, D, W), dtype=out_dtype)
+            beliefs_rows = empty_array((B, H, D, W), out_dtype)
             bp_finest(costs[0], coarse, rings, slope_arrays[0], int(iterations), beliefs_rows, labels_rows,
                       belief_scale, k)
             del coarse, rings
