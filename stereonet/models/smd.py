@@ -107,24 +107,26 @@ class SMDNet(nn.Module):
         max_disp, channels, aggregation, upsample, matching: as :class:`DispNet`.
         hidden: widths of the MLP's hidden layers.
         context: reach in input pixels of the neighbourhood the head also sees (module doc; 0: the point only).
+        context_grey: whether that neighbourhood includes the left image's grey level (False: the backbone's
+            disparity alone, a cue that means the same on renders and photos, where depth and intensity edges part).
     """
 
     stride = DispNet.stride
 
     def __init__(self, max_disp: int = 96, channels: int = 16, hidden: tuple[int, ...] = (32, 16),
                  aggregation: str = "2d", upsample: str = "bilinear", matching: str = "learned",
-                 context: int = 0) -> None:
+                 context: int = 0, context_grey: bool = True) -> None:
         super().__init__()
         if isinstance(context, bool) or not isinstance(context, int) or context < 0:
             raise ValueError(f"context: expected an integer >= 0 (pixels), got {context!r}")
         self.backbone = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation,
                                 upsample=upsample, matching=matching)
         self.max_disp = self.backbone.max_disp
-        self.context = context
+        self.context, self.context_grey = context, bool(context_grey)
         self.offsets = context_offsets(context)
         c = self.backbone.channels
         in_ch = c // 2 + c + 2 * c + 1  # features at strides 1, 2, 4 + the backbone disparity
-        in_ch += 2 * len(self.offsets)  # + the neighbourhood's relative disparity and grey level
+        in_ch += (2 if self.context_grey else 1) * len(self.offsets)  # + the neighbourhood's disparity (and grey)
         layers: list[nn.Module] = []
         for width in hidden:
             layers += [nn.Conv2d(in_ch, width, 1), nn.LeakyReLU(0.1, inplace=True)]
@@ -139,14 +141,16 @@ class SMDNet(nn.Module):
         Returned disparities are in pixels of the backbone's input resolution. The two modes are offsets from the
         backbone's disparity (the anchor); ``detach_anchor`` (training only, same values) stops the mixture's
         gradient there, so that the head's loss reaches the backbone through its features only. ``left``: the
-        backbone's left input :math:`(B, C, H, W)` in [0, 1], needed (only) when ``context > 0``.
+        backbone's left input :math:`(B, C, H, W)` in [0, 1], needed (only) when ``context > 0`` with ``context_grey``.
         """
         sample = lambda x: F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
         anchor = backbone.disparity.detach() if detach_anchor else backbone.disparity
         disp = sample(anchor)  # Bx1xHqxWq
         unit = self.backbone.disp_unit
         inputs = [sample(backbone.features[s]) for s in (1, 2, 4)] + [disp / self.max_disp]
-        if self.offsets:
+        if self.offsets and not self.context_grey:
+            inputs.append(neighbourhood(anchor / unit, grid, self.offsets))
+        elif self.offsets:
             if left is None or left.shape[-2:] != anchor.shape[-2:]:
                 raise StereoInputError(f"left: expected the backbone's left input of size {tuple(anchor.shape[-2:])} "
                                        f"(context {self.context}), got {None if left is None else tuple(left.shape)}")
@@ -214,5 +218,5 @@ def predict_smd(net: SMDNet, left: torch.Tensor, right: torch.Tensor, upsample: 
     backbone, padder = run_padded(net.backbone, left, right)
     b, _, h, w = left.shape
     grid = padded_query_grid(b, h, w, padder, upsample, device=left.device, dtype=left.dtype)
-    left_p = padder.pad(left)[0] if net.offsets else None  # (run_padded checked the pair)
+    left_p = padder.pad(left)[0] if net.offsets and net.context_grey else None  # (run_padded checked the pair)
     return mixture_outputs(net.query(backbone, grid, left=left_p), grid.shape[2] / w, with_mixture)

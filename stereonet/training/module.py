@@ -235,7 +235,8 @@ class SMDModule(StereoModule):
         freeze_backbone: keep the ``init_backbone`` weights fixed and train the head alone by the mixture NLL (the
             backbone's L1 losses are then not computed): SMD is that very backbone plus the head, so the head's
             effect on edges is measured against the backbone trained without it. Needs ``init_backbone``.
-        context: the head's neighbourhood reach in pixels (see :class:`~stereonet.models.smd.SMDNet`; 0: off).
+        context, context_grey: the head's neighbourhood reach in pixels (0: off) and whether it includes the grey
+            level (see :class:`~stereonet.models.smd.SMDNet`).
     """
 
     model_name = "smd"
@@ -245,7 +246,7 @@ class SMDModule(StereoModule):
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4, schedule_steps: int = 5000,
                  aggregation: str = "2d", upsample: str = "bilinear", edge_weight: float = 1.0,
                  channels_last: bool = False, detach_anchor: bool = False, matching: str = "learned",
-                 freeze_backbone: bool = False, context: int = 0) -> None:
+                 freeze_backbone: bool = False, context: int = 0, context_grey: bool = True) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if edge_weight < 1.0:
             raise ValueError(f"edge_weight: expected >= 1, got {edge_weight}")
@@ -253,7 +254,7 @@ class SMDModule(StereoModule):
             raise ValueError("freeze_backbone: needs init_backbone (the DispNet weights to keep fixed)")
         self.save_hyperparameters()
         self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation,
-                            upsample=upsample, matching=matching, context=context)
+                            upsample=upsample, matching=matching, context=context, context_grey=context_grey)
         if init_backbone:
             backbone, info = load_weights(init_backbone, expected="dispnet")
             wanted = _dispnet_config(max_disp, channels, aggregation, upsample, matching)
@@ -269,7 +270,11 @@ class SMDModule(StereoModule):
         hp = self.hparams
         config = {**_dispnet_config(hp.max_disp, hp.channels, hp.aggregation, hp.upsample, hp.matching),
                   "hidden": list(hp.hidden)}
-        return {**config, "context": hp.context} if hp.context else config  # (files without it: 0)
+        if hp.context:  # (files without these keys: 0, and the grey level included)
+            config["context"] = hp.context
+            if not hp.context_grey:
+                config["context_grey"] = False
+        return config
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)

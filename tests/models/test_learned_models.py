@@ -269,6 +269,18 @@ def test_smd_context_head_sees_the_image_around_each_point():
         assert torch.equal(plain.query(backbone, grid).pi, plain.query(backbone, grid, left=other).pi)
     disp, unc = predict_smd(ctx, left[..., :30, :45], right[..., :30, :45], upsample=2.0)  # padded, any scale
     assert disp.shape == unc.shape == (1, 1, 60, 90) and bool(torch.isfinite(disp).all())
+    # context_grey=False: the disparity neighbourhood alone; the image is not read (nor needed) by the head
+    bare = SMDNet(max_disp=16, channels=8, context=2, context_grey=False).eval()
+    assert bare.mlp[0].in_channels == plain.mlp[0].in_channels + 24
+    with torch.no_grad():
+        backbone = bare.backbone(left, right)
+        assert torch.equal(bare.query(backbone, grid).pi, bare.query(backbone, grid, left=other).pi)
+        moved = DispNetOutput(backbone.disparity.clone(), backbone.pyramid, backbone.features, backbone.matched)
+        moved.disparity[..., 10:20, 10:20] += 3.0
+        changed = (bare.query(backbone, grid).pi - bare.query(moved, grid).pi).abs()[0, 0] > 1e-6
+        assert changed[8:22, 8:22].any() and not changed[:6].any()  # points whose neighbourhood's disparity moved
+    disp, _ = predict_smd(bare, left[..., :30, :45], right[..., :30, :45], upsample=2.0)
+    assert disp.shape == (1, 1, 60, 90) and bool(torch.isfinite(disp).all())
 
 
 def test_smd_stateless_same_structure():

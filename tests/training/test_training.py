@@ -338,8 +338,8 @@ def test_smd_loss_decreases_on_one_batch(one_thread):
     assert pred.shape == batch["disparity"].shape and "nll" in extra
 
 
-@pytest.mark.parametrize("context", [0, 2])
-def test_smd_frozen_backbone_trains_the_head_alone(one_thread, tmp_path, context):
+@pytest.mark.parametrize("context, grey", [(0, True), (2, True), (2, False)])
+def test_smd_frozen_backbone_trains_the_head_alone(one_thread, tmp_path, context, grey):
     """freeze_backbone: SMD = the given DispNet weights (unchanged by training) + a head learnt by the NLL alone
     (with and without the head's neighbourhood)."""
     from stereonet.models.dispnet import DispNet
@@ -349,8 +349,10 @@ def test_smd_frozen_backbone_trains_the_head_alone(one_thread, tmp_path, context
     config = {"max_disp": 16, "channels": 8, "aggregation": "2d", "upsample": "select", "matching": "census"}
     path = tmp_path / "dispnet.pt"
     save_weights(path, "dispnet", config, DispNet(**config))
-    module = SMDModule(**config, init_backbone=str(path), freeze_backbone=True, lr=3e-3, context=context)
+    module = SMDModule(**config, init_backbone=str(path), freeze_backbone=True, lr=3e-3, context=context,
+                       context_grey=grey)
     assert module.model_config().get("context", 0) == context  # (files without the key: 0)
+    assert module.model_config().get("context_grey", True) == grey
     start = {k: v.clone() for k, v in module.model.backbone.state_dict().items()}
     batch = _one_batch()
     first, final = _fit(lambda: module.compute(batch)[0], [p for p in module.parameters() if p.requires_grad], 20, 3e-3)
