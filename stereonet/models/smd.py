@@ -14,7 +14,8 @@ disparity and the left image's standardised grey level at offsets ``0, ±1, ±2,
 ``±context`` on each axis), each relative to the point's own value. A per-point head sees only the features and
 the disparity *at* the point, so at a blurred depth edge it cannot tell which disparities lie on either side
 or on which side of the image's intensity edge the point is; with the neighbourhood it can place each mode on
-one side. The samples are bilinear at continuous positions, so any output scale still works.
+one side (``context_grey=False``: the disparity alone). The samples are bilinear at continuous positions, so any
+output scale still works.
 """
 
 from __future__ import annotations
@@ -148,14 +149,14 @@ class SMDNet(nn.Module):
         disp = sample(anchor)  # Bx1xHqxWq
         unit = self.backbone.disp_unit
         inputs = [sample(backbone.features[s]) for s in (1, 2, 4)] + [disp / self.max_disp]
-        if self.offsets and not self.context_grey:
-            inputs.append(neighbourhood(anchor / unit, grid, self.offsets))
-        elif self.offsets:
-            if left is None or left.shape[-2:] != anchor.shape[-2:]:
-                raise StereoInputError(f"left: expected the backbone's left input of size {tuple(anchor.shape[-2:])} "
-                                       f"(context {self.context}), got {None if left is None else tuple(left.shape)}")
-            maps = torch.cat([anchor / unit, standardize_image(left, grey=True)], dim=1)
-            inputs.append(neighbourhood(maps, grid, self.offsets))
+        if self.offsets:
+            maps = [anchor / unit]
+            if self.context_grey:
+                if left is None or left.shape[-2:] != anchor.shape[-2:]:
+                    raise StereoInputError(f"left: expected the backbone's left input of size {tuple(anchor.shape[-2:])}"
+                                           f" (context {self.context}), got {None if left is None else tuple(left.shape)}")
+                maps.append(standardize_image(left, grey=True))
+            inputs.append(neighbourhood(torch.cat(maps, dim=1), grid, self.offsets))
         raw = self.mlp(torch.cat(inputs, dim=1))  # Bx5xHqxWq
         return MixtureParams(
             mu1=disp + raw[:, 0:1] * unit,
