@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from data_gen.pair import check_render_args, render_pair
-from data_gen.scene import MAX_DIFFICULTY
+from data_gen.pair import check_render_args, pair_name, render_pair
+from data_gen.scene import MAX_DIFFICULTY, check_probability
 
 log = logging.getLogger(__name__)
 
@@ -96,11 +96,6 @@ def write_pair(folder: Path, pair: dict, rectified: bool) -> None:
         atomic_write_text(folder / "correspondences.csv", "\n".join(lines) + "\n")
 
 
-def pair_name(seed: int, index: int, difficulty: int, rectified: bool) -> str:
-    kind = "rect" if rectified else "unrect"
-    return f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}"
-
-
 def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int = 2, rectified: bool = True,
              height: int = 256, width: int = 512, supersample: int = 2, progress: bool = True,
              **render_options) -> list[Path]:
@@ -111,6 +106,7 @@ def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int 
         raise ValueError(f"count: expected an integer >= 1, got {count!r}")
     check_render_args(seed, 0, difficulty, height, width, supersample, render_options.get("max_disp"),
                       render_options.get("baseline"), render_options.get("num_objects"))
+    check_probability(render_options.get("shared_material", 0.0), "shared_material")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is an existing file; expected a folder (new or existing)")
@@ -120,7 +116,7 @@ def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int 
         raise ValueError(f"out: cannot create the folder {out} ({e.strerror or e})") from None
     folders = []
     for index in tqdm(range(count), desc="data_gen", unit="pair", disable=not progress):
-        name = pair_name(seed, index, difficulty, rectified)
+        name = pair_name(seed, index, difficulty, rectified, render_options.get("shared_material", 0.0))
         final = out / name
         folders.append(final)
         if final.is_dir():
@@ -222,6 +218,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=512)
     p.add_argument("--supersample", type=int, default=2, help="rays per pixel side for anti-aliasing")
     p.add_argument("--max-disp", type=int, default=None, help="disparity range (default: the difficulty's)")
+    p.add_argument("--shared-material", type=float, default=0.0,
+                   help="probability that an object takes the look of the surface behind it (depth edges without "
+                        "a colour edge; default 0)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument("--bench", action="store_true", help="measure pairs per second on one core and exit")
     p.add_argument("--bench-count", type=int, default=10, help="pairs rendered by --bench")
@@ -250,7 +249,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--out: required unless --bench is given")
     try:
         folders = generate(args.out, args.count, args.seed, args.difficulty, not args.unrectified, args.height,
-                           args.width, args.supersample, progress=not args.no_progress, max_disp=args.max_disp)
+                           args.width, args.supersample, progress=not args.no_progress, max_disp=args.max_disp,
+                           **({"shared_material": args.shared_material} if args.shared_material else {}))
     except (ValueError, TypeError) as e:
         parser.error(str(e))
     sys.stdout.write(f"{len(folders)} pairs in {args.out}\n")

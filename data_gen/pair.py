@@ -16,9 +16,11 @@ from data_gen.scene import (
     Rig,
     Scene,
     check_difficulty,
+    check_probability,
     default_max_disp,
     sample_rig,
     sample_scene,
+    share_materials,
 )
 
 
@@ -210,11 +212,17 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_rig
     return out
 
 
+def pair_name(seed: int, index: int, difficulty: int, rectified: bool, shared_material: float = 0.0) -> str:
+    """The name of a rendered pair (``name`` of :func:`render_pair`; the CLI's folder names)."""
+    kind = "rect" if rectified else "unrect"
+    return f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}" + (f"_m{shared_material:g}" if shared_material else "")
+
+
 def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, width: int = 512,
                 rectified: bool = True, supersample: int = 2, *, num_objects: int | None = None,
                 max_disp: int | None = None, baseline: float | None = None, distortion: bool | None = None,
                 noise: bool = True, photometric: bool = True, blur: bool = True, specular: bool = True,
-                occlusion_right: bool = False) -> dict:
+                occlusion_right: bool = False, shared_material: float = 0.0) -> dict:
     """Render one synthetic stereo pair with exact ground truth; a pure function of its arguments.
 
     Args:
@@ -228,6 +236,10 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
         noise, photometric, blur, specular: switch the corresponding effects off (the scene is unchanged).
         occlusion_right: also return ``occlusion_right`` :math:`(1, H, W)` bool (right pixels not seen by the
             left camera; one more visibility pass, ~10% of the time).
+        shared_material: probability that an object takes the look of another surface of the scene
+            (:func:`data_gen.scene.share_materials`: depth edges without a colour edge, as in photos). Drawn from a
+            stream of its own, so the geometry, lights and camera responses are those of the same pair at 0
+            (the default, which draws nothing).
 
     Returns:
         dict with ``left``, ``right`` float32 :math:`(3, H, W)` in [0, 1]; ``disparity``, ``disparity_right``,
@@ -243,18 +255,22 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
     """
     seed, index, difficulty, height, width, supersample, max_disp = check_render_args(
         seed, index, difficulty, height, width, supersample, max_disp, baseline, num_objects)
+    shared_material = check_probability(shared_material, "shared_material")
     with single_thread():
         return _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp,
-                            baseline, distortion, noise, photometric, blur, specular, occlusion_right)
+                            baseline, distortion, noise, photometric, blur, specular, occlusion_right,
+                            shared_material)
 
 
 def _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp, baseline,
-                 distortion, noise, photometric, blur, specular, occlusion_right) -> dict:
+                 distortion, noise, photometric, blur, specular, occlusion_right, shared_material=0.0) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
     rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)
     level = DIFFICULTY[difficulty]
     response = [_photometric(rng, level), _photometric(rng, level)]
+    if shared_material > 0:  # a stream of its own: everything above is the same pair as without it
+        share_materials(scene, np.random.default_rng(np.random.SeedSequence([seed, index, 1])), shared_material)
     if render_module.USE_KERNELS:
         views = [render_view_arrays(scene, rig.left, supersample, specular, second_eye=rig.right.center),
                  render_view_arrays(scene, rig.right, supersample, specular)]
@@ -266,9 +282,9 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
     gt = _ground_truth(scene, rig, views[0], views[1], occlusion_right)
     if not specular:
         gt["specular"].zero_()
-    kind = "rect" if rectified else "unrect"
     out = dict(left=images[0], right=images[1], calib=calibration_of(rig, max_disp), max_disp=max_disp,
-               name=f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}", difficulty=difficulty, scene=scene, rig=rig)
+               name=pair_name(seed, index, difficulty, rectified, shared_material), difficulty=difficulty, scene=scene,
+               rig=rig)
     out.update(gt)
     return out
 

@@ -7,6 +7,7 @@ easy to keep every ground-truth disparity inside ``[0, max_disp]``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -55,6 +56,14 @@ def check_difficulty(difficulty: object) -> int:
     if not 0 <= int(difficulty) <= MAX_DIFFICULTY:
         raise ValueError(f"difficulty: expected an integer in 0..{MAX_DIFFICULTY}, got {difficulty}")
     return int(difficulty)
+
+
+def check_probability(value: object, name: str) -> float:
+    """``value`` as a float in [0, 1] or a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating) \
+            or not 0.0 <= float(value) <= 1.0:
+        raise ValueError(f"{name}: expected a probability in [0, 1], got {value!r}")
+    return float(value)
 
 
 def default_max_disp(difficulty: int, width: int) -> int:
@@ -365,6 +374,41 @@ def _sample_object(rng: np.random.Generator, rig: Rig, level: dict, max_disp: in
     if shape == "blob":
         return PlanarPatch(centre, normal, scale, "blob", roll, radii=_blob_radii(rng), material=mat)
     return PlanarPatch(centre, normal, scale, "ellipse", roll, material=mat)
+
+
+# What an object copies from its donor under :func:`share_materials`: its look (colours, texture kind and bank,
+# contrast, pattern, shininess); it keeps its own texel size, angle and offset (another phase of the same stuff)
+SHARED_LOOK = ("kind", "colors", "bank", "scale2", "contrast", "period", "duty", "specular", "shininess")
+
+
+def share_materials(scene: Scene, rng: np.random.Generator, probability: float) -> None:
+    """Give each object, with ``probability``, the look of the surface behind it (in place).
+
+    In the sampled scenes every surface has its own random material, so every depth edge is also an edge of
+    colour and texture statistics, a cue that a network can learn to place depth edges by; in photos objects
+    often stand in front of surfaces of the same colour and material. The donor is the nearest other surface
+    behind the object's centre on the left camera's ray through it (the back wall when the ray meets none);
+    the object takes its colours, texture kind and bank, contrast, pattern and specular terms
+    (:data:`SHARED_LOOK`) and keeps its own texel size, angle and offset, so the edge shows the same material
+    in another phase rather than a continued texture. Geometry, lights and every other draw of the scene are
+    unchanged (``rng`` should be a stream of its own).
+    """
+    import torch
+
+    from data_gen.camera import PointRays
+
+    probability = check_probability(probability, "shared_material")
+    if probability == 0.0:
+        return
+    looks = [obj.material for obj in scene.objects]  # donors keep the look they were sampled with
+    for i in range(scene.num_background, len(scene.objects)):
+        if rng.random() >= probability:
+            continue
+        centre = scene.objects[i].bounding_sphere()[0]
+        ray = PointRays(np.zeros(3), torch.as_tensor(centre, dtype=torch.float64)[None])  # t = 1 at the centre
+        behind = [(float(obj.intersect(ray)[0]), k) for k, obj in enumerate(scene.objects) if k != i]
+        t, donor = min(((t, k) for t, k in behind if 1.0 < t < math.inf), default=(0.0, 0))
+        scene.objects[i].material = dataclasses.replace(looks[i], **{k: getattr(looks[donor], k) for k in SHARED_LOOK})
 
 
 def sample_scene(rng: np.random.Generator, difficulty: int, rig: Rig, max_disp: int,

@@ -59,7 +59,7 @@ class RandomShiftStereo(Dataset):
 
 
 def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: int, width: int,
-                  supersample: int = 2, max_disp: int | None = None) -> Dataset:
+                  supersample: int = 2, max_disp: int | None = None, shared_material: float = 0.0) -> Dataset:
     if source == "random-shift":
         return RandomShiftStereo(count, seed=seed, height=height, width=width, max_disp=max(1, width // 8))
     if source == "data_gen":
@@ -68,6 +68,8 @@ def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: i
         except ImportError as e:  # pragma: no cover - data_gen ships with stereonet
             raise ImportError("source: 'data_gen' needs the data_gen package (pip install -e .)") from e
         options = {} if max_disp is None else {"max_disp": int(max_disp)}
+        if shared_material:  # (not passed at 0: the same pairs as before the option existed, by construction)
+            options["shared_material"] = float(shared_material)
         return data_gen.SyntheticStereo(count, seed=seed, difficulty=difficulty, height=height, width=width,
                                         supersample=supersample, **options)
     raise ValueError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
@@ -241,8 +243,10 @@ class PooledCurriculumStream(IterableDataset):
     def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
                  augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None,
                  rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0,
-                 extra: Dataset | None = None, extra_ratio: float = 0.0, vertical_warp: float = 0.0) -> None:
+                 extra: Dataset | None = None, extra_ratio: float = 0.0, vertical_warp: float = 0.0,
+                 shared_material: float = 0.0) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
+        self.shared_material = float(shared_material)
         self.extra, self.extra_ratio = extra, float(extra_ratio) if extra is not None else 0.0
         self.vertical_jitter, self.vertical_warp = float(vertical_jitter), float(vertical_warp)
         self.supersample, self.disparity_range = supersample, disparity_range
@@ -265,7 +269,7 @@ class PooledCurriculumStream(IterableDataset):
                 level = int(self.difficulty.value)
                 max_disp = sample_max_disp(self.source, level, self.width, self.disparity_range, g)
                 ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height, self.width,
-                                   self.supersample, max_disp)
+                                   self.supersample, max_disp, self.shared_material)
                 pool.append(ds[index])
                 pool = pool[-self.pool_size:]
             counter += 1
@@ -344,6 +348,9 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             sees the small rectification errors every real rig has (0 = off, the default).
         vertical_warp, val_vertical_warp: the offsets also vary across the image, up to this many rows at
             the borders (a small roll and vertical scale error; :func:`vertical_jitter`'s ``warp``; 0 = off).
+        shared_material: probability that an object of a rendered training pair takes the look of another
+            surface of its scene (``data_gen.render_pair``'s option: depth edges without a colour edge, as in
+            photos; 0 = off, the default). Validation pairs are rendered without it.
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
@@ -352,11 +359,15 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  curriculum_fraction: float = 0.5, min_difficulty: int = 0, num_workers: int = 0,
                  augment: bool = True, supersample: int = 2, disparity_range: int | None = None,
                  vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0, train: str | None = None,
-                 train_ratio: float = 0.5, vertical_warp: float = 0.0, val_vertical_warp: float = 0.0) -> None:
+                 train_ratio: float = 0.5, vertical_warp: float = 0.0, val_vertical_warp: float = 0.0,
+                 shared_material: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters()
         from stereonet.checks import StereoInputError
 
+        if isinstance(shared_material, bool) or not isinstance(shared_material, int | float) \
+                or not 0.0 <= shared_material <= 1.0:
+            raise StereoInputError(f"--data.shared_material: expected a probability in [0, 1], got {shared_material!r}")
         if not 0.0 < train_ratio <= 1.0:
             raise StereoInputError(f"--data.train_ratio: expected a share in (0, 1], got {train_ratio}")
         self.train_extra = open_training_spec(train, height, width) if train else None
@@ -404,7 +415,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                         hp.augment, self._difficulty, self._start, hp.supersample,
                                         hp.disparity_range, rank=rank, world_size=world,
                                         vertical_jitter=hp.vertical_jitter, extra=self.train_extra,
-                                        extra_ratio=hp.train_ratio, vertical_warp=hp.vertical_warp)
+                                        extra_ratio=hp.train_ratio, vertical_warp=hp.vertical_warp,
+                                        shared_material=hp.shared_material)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

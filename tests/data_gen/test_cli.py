@@ -72,8 +72,16 @@ def test_cli_resumes_and_leaves_only_complete_pairs(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [pair_name(0, i, 0, True) for i in range(3)]
 
 
+def test_cli_shared_material_names_its_pairs_apart(tmp_path):
+    folders = main(["--out", str(tmp_path), "--count", "1", "--no-progress", "--height", "48", "--width", "96",
+                    "--supersample", "1", "--shared-material", "0.5"])
+    assert folders == 0 and [p.name for p in tmp_path.iterdir()] == [pair_name(0, 0, 2, True, 0.5)]
+    assert pair_name(0, 0, 2, True, 0.5).endswith("_m0.5") and pair_name(0, 0, 2, True) != pair_name(0, 0, 2, True, 0.5)
+
+
 @pytest.mark.parametrize("args,param", [(["--difficulty", "9"], "difficulty"), (["--count", "0"], "count"),
-                                        (["--max-disp", "500"], "max_disp")])
+                                        (["--max-disp", "500"], "max_disp"),
+                                        (["--shared-material", "1.5"], "shared_material")])
 def test_cli_bad_input_exits_with_a_message(tmp_path, capsys, args, param):
     with pytest.raises(SystemExit) as exc:
         main(["--out", str(tmp_path), "--count", "1", "--no-progress", *args])

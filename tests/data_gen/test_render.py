@@ -174,6 +174,8 @@ def test_dataset_workers_match_and_collate():
     (dict(difficulty="hard"), "difficulty"),
     (dict(height=0), "height"),
     (dict(supersample=0), "supersample"),
+    (dict(shared_material=1.5), "shared_material"),
+    (dict(shared_material="often"), "shared_material"),
 ])
 def test_bad_input_names_the_parameter(kwargs, param):
     args = dict(seed=0, index=0, height=H, width=W)
@@ -204,6 +206,51 @@ def test_raycast_and_visibility_on_a_hand_built_scene():
     lit = data_gen.render_view(scene, cam, supersample=1,
                                extra_light_fn=lambda p, n, ids: (p[:, 0] > 0).to(p.dtype) * 0.3)["image"]
     assert torch.all(lit[:, :, 60:] >= base[:, :, 60:]) and torch.equal(lit[:, :, :40], base[:, :, :40])
+
+
+def test_shared_material_gives_an_object_the_look_of_the_surface_behind_it():
+    """A patch in front of a ball in front of a wall, and a ball off to the side: with probability 1 the patch
+    takes the ball's look (the nearest surface behind its centre), the side ball the wall's; each keeps its own
+    texel size, angle and offset; probability 0 changes nothing and draws nothing."""
+    from data_gen.scene import SHARED_LOOK, share_materials
+
+    def looks():
+        wall = data_gen.Plane([0, 0, 5000], [0, 0, 1], material=Material(kind="checker", colors=np.full((3, 3), 0.2)))
+        ball = data_gen.Sphere([0, 0, 2000], 300.0, material=Material(kind="stripes", period=5.0, specular=0.5))
+        patch = data_gen.PlanarPatch([0, 0, 1000], [0, 0, -1], (50.0, 50.0),
+                                     material=Material(kind="bank", texel_mm=3.0, angle=1.0, offset=(4.0, 2.0)))
+        side = data_gen.Sphere([1500, 0, 3000], 100.0, material=Material(kind="flat", texel_mm=7.0))
+        return data_gen.Scene([wall, ball, patch, side], num_background=1)
+
+    scene = looks()
+    wall, ball, patch, side = (o.material for o in scene.objects)
+    rng = np.random.default_rng(0)
+    share_materials(scene, rng, 0.0)
+    assert all(o.material is m for o, m in zip(scene.objects, (wall, ball, patch, side)))
+    assert rng.random() == np.random.default_rng(0).random()  # nothing drawn at 0
+    share_materials(scene, np.random.default_rng(0), 1.0)
+    for obj, donor, own in ((scene.objects[2], ball, patch), (scene.objects[3], wall, side)):
+        for key in SHARED_LOOK:
+            assert np.array_equal(getattr(obj.material, key), getattr(donor, key)), key
+        assert (obj.material.texel_mm, obj.material.angle, obj.material.offset) == (own.texel_mm, own.angle, own.offset)
+    assert scene.objects[0].material is wall
+    assert scene.objects[1].material.kind == "checker"  # the ball took the wall's look, the patch the ball's own
+    with pytest.raises(ValueError, match="shared_material"):
+        share_materials(scene, rng, -0.1)
+
+
+def test_shared_material_changes_the_images_only_and_zero_is_the_default_pair():
+    plain = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1)
+    zero = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1, shared_material=0.0)
+    shared = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1, shared_material=1.0)
+    for key in ("left", "right", "disparity", "valid", "occlusion"):
+        assert torch.equal(plain[key], zero[key]), key
+    for key in ("disparity", "disparity_right", "valid", "occlusion", "depth"):
+        assert torch.equal(plain[key], shared[key]), key  # same geometry, lights and cameras
+    moved = (plain["left"] - shared["left"]).abs().amax(0) > 0.02
+    assert 0.02 < float(moved.float().mean()) < 0.9  # the objects changed, not the whole image
+    assert data_gen.SyntheticStereo(1, seed=11, difficulty=2, height=H, width=W, supersample=1,
+                                    shared_material=1.0)[0]["left"].equal(shared["left"])
 
 
 def test_cylinder_and_patch_intersections_match_closed_form():

@@ -504,6 +504,28 @@ def test_vertical_warp_varies_the_offset_across_the_image_and_keeps_ground_truth
     torch.testing.assert_close(plain_a["right"], plain_b["right"])
 
 
+def test_shared_material_reaches_the_rendered_training_pairs_only():
+    """``--data.shared_material``: the training stream renders the same pairs with objects re-dressed (same
+    ground truth, other images); validation pairs are rendered without it; a value outside [0, 1] is a
+    one-line error naming the option."""
+    from stereonet.checks import StereoInputError
+    from stereonet.training.data import SyntheticStereoDataModule
+
+    def first(p):
+        dm = SyntheticStereoDataModule(source="data_gen", height=48, width=96, batch_size=1, pool_size=1, reuse=1,
+                                       val_pairs=1, supersample=1, augment=False, shared_material=p)
+        dm.setup("fit")
+        dm.set_progress(1.0)
+        return next(iter(dm.train_dataloader())), dm.val_items[0]
+
+    (plain, val_plain), (shared, val_shared) = first(0.0), first(1.0)
+    torch.testing.assert_close(shared["disparity"], plain["disparity"])
+    assert not torch.equal(shared["left"], plain["left"])
+    torch.testing.assert_close(val_shared["left"], val_plain["left"])
+    with pytest.raises(StereoInputError, match="--data.shared_material"):
+        SyntheticStereoDataModule(source="data_gen", shared_material=2.0)
+
+
 def test_validation_jitter_is_fixed_per_pair_and_leaves_ground_truth_alone():
     from stereonet.training.data import SyntheticStereoDataModule
 
