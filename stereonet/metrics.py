@@ -238,7 +238,9 @@ def sparsification(pred, gt, gt_valid=None, uncertainty=None, confidence=None, p
     Over the evaluated pixels (``gt_valid``, pooled over the batch) remove the fraction ``f`` that the
     method trusts least (descending ``uncertainty``, or ascending ``confidence``; pixels without a
     prediction are removed before any predicted one and count as errors, as in :func:`bad_pixel_rate`) and
-    measure bad-``tau`` of the rest; the oracle removes pixels by descending true error instead.
+    measure bad-``tau`` of the rest; the oracle removes pixels by descending true error instead. Pixels of equal
+    rank are removed in random order, in expectation (a tie group cut by a fraction gives up its errors in
+    proportion), so a binary or clipped confidence is scored for what it says and not by the pixels' order.
 
     Returns:
         ``(fractions, curve, oracle)``: ``fractions = i / steps`` for ``i = 0 .. steps - 1`` and the two
@@ -257,15 +259,27 @@ def sparsification(pred, gt, gt_valid=None, uncertainty=None, confidence=None, p
     if n == 0:
         nan = np.full(steps, math.nan)
         return fractions, nan, nan.copy()
+    ks = torch.from_numpy(np.floor(fractions * n).astype(np.int64))
+    kept = (n - ks).to(torch.float64)
     curves = []
     for order_key in (rank[gv], err):
-        # stable descending sort: remove the first k; ties keep the pixel order
-        order = torch.sort(order_key.to(torch.float64), descending=True, stable=True).indices
-        removed_bad = torch.cat([bad.new_zeros(1), torch.cumsum(bad[order], 0)])  # bad among the first k
-        ks = torch.from_numpy(np.floor(fractions * n).astype(np.int64))
-        kept = (n - ks).to(torch.float64)
-        curves.append(((bad.sum() - removed_bad[ks]) / kept * 100.0).numpy())
+        removed_bad = _expected_removed(order_key.to(torch.float64), bad, ks)
+        curves.append(((bad.sum() - removed_bad) / kept * 100.0).numpy())
     return fractions, curves[0], curves[1]
+
+
+def _expected_removed(key: torch.Tensor, bad: torch.Tensor, ks: torch.Tensor) -> torch.Tensor:
+    """Bad pixels among the first ``k`` (each of ``ks``) in descending ``key``, in expectation over the order of
+    equal keys: a group of ties cut at ``k`` contributes its bad share pro rata, so a ranking is judged by what
+    it says, never by the pixel order (a constant ranking keeps the bad rate at every fraction)."""
+    order = torch.sort(key, descending=True, stable=True).indices
+    _, counts = torch.unique_consecutive(key[order], return_counts=True)
+    ends = torch.cumsum(counts, 0)
+    starts = ends - counts
+    cum = torch.cat([bad.new_zeros(1), torch.cumsum(bad[order], 0)])  # bad among the first k, in sorted order
+    group = torch.searchsorted(ends, ks, right=True).clamp(max=counts.numel() - 1)  # the tie group at position k
+    share = (cum[ends[group]] - cum[starts[group]]) / counts[group].to(torch.float64)
+    return cum[starts[group]] + (ks - starts[group]).to(torch.float64) * share
 
 
 def sparsification_ause(pred, gt, gt_valid=None, uncertainty=None, confidence=None, pred_valid=None,

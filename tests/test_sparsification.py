@@ -31,6 +31,25 @@ def test_curve_starts_at_bad_rate_and_oracle_falls_to_zero():
     assert oracle[0] == pytest.approx(curve[0])
     # two thirds of the pixels are bad: once more than that is removed, the oracle keeps only good ones
     assert oracle[-1] == 0.0 and np.all(np.diff(oracle) <= 1e-12)
+    # a ranking that says nothing removes good and bad pixels alike: the bad rate stays, the AUSE is the full gap
+    assert curve == pytest.approx(np.full(10, curve[0]), abs=1e-9)
+
+
+def test_ties_are_scored_by_expectation_not_pixel_order():
+    """Errors all in the first rows and a binary confidence that cannot tell them apart from half the good
+    pixels: the curve is what a random order inside each tie group gives in expectation, the same whichever
+    way the rows are stored (pixel order used to decide ties: the flipped image scored differently)."""
+    pred, gt, err = _errors()
+    bad_rows = torch.zeros_like(err)
+    bad_rows[..., :5, :] = 5.0  # the first quarter of the rows are the errors (> 2 px)
+    pred = gt + bad_rows
+    conf = torch.ones_like(err)
+    conf[..., :10, :] = 0.0  # the method distrusts the first half: all errors and as many good pixels
+    _, curve, _ = sparsification(pred, gt, confidence=conf, steps=4)
+    _, flipped, _ = sparsification(pred.flip(-2), gt.flip(-2), confidence=conf.flip(-2), steps=4)
+    # removing 25 % of 400 takes half of the distrusted 200 pixels: 50 errors of 100 bad in expectation
+    assert curve == pytest.approx([25.0, 50 / 300 * 100, 0.0, 0.0])
+    assert flipped == pytest.approx(curve)
 
 
 def test_worse_ranking_gives_larger_ause():
