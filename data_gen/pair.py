@@ -236,7 +236,7 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
         noise, photometric, blur, specular: switch the corresponding effects off (the scene is unchanged).
         occlusion_right: also return ``occlusion_right`` :math:`(1, H, W)` bool (right pixels not seen by the
             left camera; one more visibility pass, ~10% of the time).
-        shared_material: probability that an object takes the look of another surface of the scene
+        shared_material: probability that an object takes the look of the surface behind it
             (:func:`data_gen.scene.share_materials`: depth edges without a colour edge, as in photos). Drawn from a
             stream of its own, so the geometry, lights and camera responses are those of the same pair at 0
             (the default, which draws nothing).
@@ -263,7 +263,7 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
 
 
 def _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp, baseline,
-                 distortion, noise, photometric, blur, specular, occlusion_right, shared_material=0.0) -> dict:
+                 distortion, noise, photometric, blur, specular, occlusion_right, shared_material) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
     rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)

@@ -407,7 +407,7 @@ def share_materials(scene: Scene, rng: np.random.Generator, probability: float) 
         centre = scene.objects[i].bounding_sphere()[0]
         ray = PointRays(np.zeros(3), torch.as_tensor(centre, dtype=torch.float64)[None])  # t = 1 at the centre
         behind = [(float(obj.intersect(ray)[0]), k) for k, obj in enumerate(scene.objects) if k != i]
-        t, donor = min(((t, k) for t, k in behind if 1.0 < t < math.inf), default=(0.0, 0))
+        _, donor = min(((t, k) for t, k in behind if 1.0 < t < math.inf), default=(0.0, 0))
         scene.objects[i].material = dataclasses.replace(looks[i], **{k: getattr(looks[donor], k) for k in SHARED_LOOK})
 
 
