@@ -24,6 +24,9 @@ module                 kernels
 
 from __future__ import annotations
 
+import ctypes
+import mmap
+
 import numpy as np
 import torch
 
@@ -48,16 +51,43 @@ def use_numba(*tensors: torch.Tensor, backend: str = "auto", float32_only: bool 
                and (not float32_only or t.dtype == torch.float32) for t in tensors)
 
 
+_MADV_NOHUGEPAGE = 15  # Linux (asm-generic/mman-common.h)
+try:
+    _madvise = ctypes.CDLL(None, use_errno=True).madvise  # the process's C library
+    _madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+except (OSError, AttributeError):  # no dlopen(NULL) or no madvise: nothing to ask
+    _madvise = None
+
+
+def no_huge_pages(address: int, nbytes: int) -> bool:
+    """Ask the kernel not to back the whole pages inside ``[address, address + nbytes)`` with transparent huge
+    pages (``madvise(MADV_NOHUGEPAGE)``), before their first touch; True where applied (Linux), else False.
+
+    The flag belongs to the memory mapping, and heap memory that numpy once marked ``MADV_HUGEPAGE`` keeps that
+    mark for whatever later reuses it, so a buffer that must avoid huge pages says so itself."""
+    if _madvise is None:
+        return False
+    lo = -(-address // mmap.PAGESIZE) * mmap.PAGESIZE
+    hi = (address + nbytes) // mmap.PAGESIZE * mmap.PAGESIZE
+    return hi > lo and _madvise(lo, hi - lo, _MADV_NOHUGEPAGE) == 0
+
+
 def empty_array(shape: tuple[int, ...], dtype, zero: bool = False) -> np.ndarray:
-    """A (zeroed with ``zero``) numpy array of ``shape`` and numpy ``dtype`` on torch's CPU allocator, for the
-    large buffers the kernels fill.
+    """A (zeroed with ``zero``) numpy array of ``shape`` and numpy ``dtype`` on torch's CPU allocator, without
+    transparent huge pages, for the large buffers the kernels fill.
 
     numpy marks every array of 4 MiB or more as ``MADV_HUGEPAGE``; under the common transparent-huge-page setting
     ``defrag=madvise`` the kernel then compacts memory *synchronously* on a first touch whenever free 2 MiB blocks
     are scarce, so a call's time depends on the machine's memory state: ``bp``'s first call on a KITTI pair spent
     0.6 s of system time in such faults (0.94 s against 0.38 s for the next calls). torch's allocator does not ask
-    for huge pages: ordinary 4 KiB faults, the same every call.
+    for huge pages, but heap memory numpy once marked keeps the mark when torch reuses it (with
+    :func:`stereonet.measure.reuse_freed_memory`, as in the programs), so a buffer of 4 MiB or more is also marked
+    ``MADV_NOHUGEPAGE`` before it is first touched (:func:`no_huge_pages`): ordinary 4 KiB faults.
     """
     torch_dtype = torch.from_numpy(np.empty(0, dtype=dtype)).dtype
-    make = torch.zeros if zero else torch.empty
-    return make(tuple(int(n) for n in shape), dtype=torch_dtype).numpy()
+    out = torch.empty(tuple(int(n) for n in shape), dtype=torch_dtype).numpy()
+    if out.nbytes >= 4 << 20:
+        no_huge_pages(out.__array_interface__["data"][0], out.nbytes)
+    if zero:
+        out.fill(0)
+    return out
