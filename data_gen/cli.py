@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         folders = generate(args.out, args.count, args.seed, args.difficulty, not args.unrectified, args.height,
                            args.width, args.supersample, progress=not args.no_progress, max_disp=args.max_disp,
-                           **({"shared_material": args.shared_material} if args.shared_material else {}))
+                           shared_material=args.shared_material)
     except (ValueError, TypeError) as e:
         parser.error(str(e))
     sys.stdout.write(f"{len(folders)} pairs in {args.out}\n")

@@ -12,8 +12,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
-from data_gen.camera import Camera
+from data_gen.camera import Camera, PointRays
 from data_gen.primitives import Cylinder, PlanarPatch, Plane, Primitive, Sphere
 from data_gen.textures import BANK_COUNT, Material
 
@@ -393,10 +394,6 @@ def share_materials(scene: Scene, rng: np.random.Generator, probability: float) 
     in another phase rather than a continued texture. Geometry, lights and every other draw of the scene are
     unchanged (``rng`` should be a stream of its own).
     """
-    import torch
-
-    from data_gen.camera import PointRays
-
     probability = check_probability(probability, "shared_material")
     if probability == 0.0:
         return

@@ -9,6 +9,7 @@ import torch
 from stereonet import matchers, metrics
 from stereonet.data import load_dataset
 from stereonet.evaluation import _batch, apply_fill, expand_data_specs
+from stereonet.select.lr_check import left_right_difference
 
 fn = matchers.get_matcher("sgm")
 rows = {}
@@ -24,11 +25,7 @@ for spec in expand_data_specs("real"):
             outr = fn(r.flip(-1), l.flip(-1), md)
         dr = apply_fill(outr).disparity.flip(-1)
         d = apply_fill(out).disparity
-        w = d.shape[-1]
-        xs = torch.arange(w).view(1, 1, 1, w).expand_as(d)
-        xr = (xs - d).round().long().clamp(0, w - 1)
-        lrd = (d - dr.gather(-1, xr)).abs()
-        lrd = torch.where((xs - d) < 0, torch.full_like(lrd, 1e3), lrd)
+        lrd = left_right_difference(d, dr)  # +inf where the match leaves the right image
         name = f"{spec.split(':')[0]}/{it.get('name', i)}"
         a = dict(
             own=metrics.sparsification_ause(d, gt, gv, confidence=out.confidence),

@@ -67,9 +67,9 @@ def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: i
             import data_gen
         except ImportError as e:  # pragma: no cover - data_gen ships with stereonet
             raise ImportError("source: 'data_gen' needs the data_gen package (pip install -e .)") from e
-        options = {} if max_disp is None else {"max_disp": int(max_disp)}
-        if shared_material:  # (not passed at 0: the same pairs as before the option existed, by construction)
-            options["shared_material"] = float(shared_material)
+        options = {"shared_material": float(shared_material)}  # 0: the same pairs as before the option existed
+        if max_disp is not None:
+            options["max_disp"] = int(max_disp)
         return data_gen.SyntheticStereo(count, seed=seed, difficulty=difficulty, height=height, width=width,
                                         supersample=supersample, **options)
     raise ValueError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
