@@ -14,12 +14,16 @@ import torch.nn.functional as F
 from torch import nn
 
 from stereonet.checks import StereoInputError, check_shape
+from stereonet.cost.census import census_signs
 from stereonet.cost.correlation import correlation_1d
 from stereonet.kernels import use_numba
 from stereonet.models.layers import standardize_image
 
 INVALID_COST = 2.0
 """Cost of a pixel whose match would fall outside the right image: the largest possible 1 - <f_l, f_r>."""
+
+INPUTS = ("grey", "census")
+"""What the tower's first convolution reads (``inputs`` of :class:`SiameseNet`)."""
 
 PRECISIONS = ("auto", "float32", "bfloat16")
 """Arithmetic of the feature tower at inference (``precision`` option of the Siamese matchers)."""
@@ -49,23 +53,47 @@ class SiameseNet(nn.Module):
 
     Args:
         channels: feature width of every layer.
-        layers: number of 3x3 conv layers (receptive field ``2 * layers + 1``).
+        layers: number of 3x3 conv layers.
+        inputs: ``"grey"`` (the standardised grey image, MC-CNN's input) or ``"census"``: the first convolution
+            reads the ``census_window**2 - 1`` census comparisons of each pixel with its neighbours
+            (:func:`~stereonet.cost.census.census_signs`, ±1 / sqrt(n)) instead of the grey level, so the features
+            cannot depend on the image's intensities beyond their local order.
+        census_window: odd census window of ``inputs="census"`` (>= 3).
+
+    The receptive field is ``2 * radius + 1`` with ``radius = layers`` (grey) or ``layers + census_window // 2``.
     """
 
-    def __init__(self, channels: int = 32, layers: int = 4) -> None:
+    def __init__(self, channels: int = 32, layers: int = 4, inputs: str = "grey", census_window: int = 5) -> None:
         super().__init__()
         if layers < 1:
             raise StereoInputError(f"layers: expected >= 1, got {layers}")
-        self.channels, self.layers = int(channels), int(layers)
-        self.radius = self.layers  # each unpadded 3x3 conv shrinks the map by one pixel per side
+        if inputs not in INPUTS:
+            raise StereoInputError(f"inputs: expected one of {', '.join(map(repr, INPUTS))}, got {inputs!r}")
+        if inputs == "census" and (isinstance(census_window, bool) or not isinstance(census_window, int)
+                                   or census_window < 3 or census_window % 2 == 0):
+            raise StereoInputError(f"census_window: expected an odd integer >= 3, got {census_window!r}")
+        self.channels, self.layers, self.inputs = int(channels), int(layers), inputs
+        self.census_window = int(census_window) if inputs == "census" else 0
+        self.census_radius = self.census_window // 2
+        # each unpadded 3x3 conv shrinks the map by one pixel per side, and so does each census ring
+        self.radius = self.layers + self.census_radius
         mods: list[nn.Module] = []
-        in_ch = 1
+        in_ch = 1 if inputs == "grey" else self.census_window ** 2 - 1
         for i in range(self.layers):
             mods.append(nn.Conv2d(in_ch, self.channels, 3))
             if i < self.layers - 1:
                 mods.append(nn.ReLU(inplace=True))
             in_ch = self.channels
         self.tower = nn.Sequential(*mods)
+
+    def _first_input(self, padded: torch.Tensor) -> torch.Tensor:
+        """The first convolution's input from the padded standardised grey image: itself, or (census) the
+        census comparisons of the pixels whose whole census window lies inside it (``census_radius`` fewer
+        per side)."""
+        if self.inputs == "grey":
+            return padded
+        r = self.census_radius
+        return census_signs(padded, self.census_window)[..., r:padded.shape[-2] - r, r:padded.shape[-1] - r]
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """Unit-length features :math:`(B, F, H, W)` of an image :math:`(B, C, H, W)` in [0, 1].
@@ -76,7 +104,7 @@ class SiameseNet(nn.Module):
         and the features come back in it.
         """
         x = standardize_image(image, grey=True)
-        h = F.pad(x, (self.radius,) * 4, mode="replicate")
+        h = self._first_input(F.pad(x, (self.radius,) * 4, mode="replicate"))
         for module in self.tower:
             if isinstance(module, nn.Conv2d):
                 h = h.to(module.weight.dtype)
@@ -111,7 +139,7 @@ class SiameseNet(nn.Module):
         patches = F.grid_sample(grey, grid.reshape(b, n * k, k, 2), mode="bilinear", padding_mode="border",
                                 align_corners=False)  # Bx1x(N*K)xK
         patches = patches.reshape(b, n, k, k).reshape(b * n, 1, k, k)  # (B*N)x1xKxK
-        feats = F.normalize(self.tower(patches).reshape(b, n, -1), dim=2)  # BxNxF
+        feats = F.normalize(self.tower(self._first_input(patches)).reshape(b, n, -1), dim=2)  # BxNxF
         return feats.transpose(1, 2)
 
 

@@ -303,7 +303,7 @@ class SiameseModule(StereoModule):
     Validation predicts by winner-takes-all on the dot-product cost volume up to ``max_disp``.
 
     Args:
-        channels, layers: the network's (see SiameseNet).
+        channels, layers, inputs, census_window: the network's (see SiameseNet).
         loss: "hinge" (margin ranking) or "bce".
         margin, neg_low, neg_high, num_samples: see :func:`~stereonet.models.siamese.siamese_pair_loss`.
         max_disp: disparity range of the validation WTA.
@@ -329,7 +329,8 @@ class SiameseModule(StereoModule):
                  neg_low: float = 1.5, neg_high: float = 8.0, num_samples: int = 256, max_disp: int = 64,
                  lr: float = 1e-3, weight_decay: float = 0.0, schedule_steps: int = 5000,
                  teacher: str | None = None, distill: float = 0.0, init_weights: str | None = None,
-                 sgm_loss: float = 0.0, sgm_margin: float = 16.0, learned_weight: float = 0.9) -> None:
+                 sgm_loss: float = 0.0, sgm_margin: float = 16.0, learned_weight: float = 0.9,
+                 inputs: str = "grey", census_window: int = 5) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         if loss not in ("hinge", "bce"):
@@ -339,20 +340,28 @@ class SiameseModule(StereoModule):
         if sgm_loss < 0 or not sgm_margin > 0 or not 0 <= learned_weight <= 1:
             raise ValueError(f"sgm_loss, sgm_margin, learned_weight: expected >= 0, > 0 and in [0, 1], got "
                              f"{sgm_loss}, {sgm_margin}, {learned_weight}")
-        self.model = SiameseNet(channels=channels, layers=layers)
+        self.model = SiameseNet(channels=channels, layers=layers, inputs=inputs, census_window=census_window)
         if init_weights is not None:
             start, _ = load_weights(init_weights, expected="siamese")
-            if (start.channels, start.layers) != (channels, layers):
-                raise ValueError(f"init_weights: {init_weights} holds a tower of {start.channels} channels x "
-                                 f"{start.layers} layers, expected {channels} x {layers}")
+            if self._shape(start) != self._shape(self.model):
+                raise ValueError(f"init_weights: {init_weights} holds a tower of {self._shape(start)}, "
+                                 f"expected {self._shape(self.model)}")
             self.model.load_state_dict(start.state_dict())
         self._teacher: list[torch.nn.Module] = []  # a list hides it from state_dict, optimiser and device moves
         if teacher is not None and distill > 0:
             net, _ = load_weights(teacher, expected="siamese")
             self._teacher.append(net.requires_grad_(False).eval())
 
+    @staticmethod
+    def _shape(net: SiameseNet) -> str:
+        census = f" on census {net.census_window}x{net.census_window}" if net.inputs == "census" else ""
+        return f"{net.channels} channels x {net.layers} layers{census}"
+
     def model_config(self) -> dict:
-        return {"channels": self.hparams.channels, "layers": self.hparams.layers}
+        config = {"channels": self.hparams.channels, "layers": self.hparams.layers}
+        if self.hparams.get("inputs", "grey") != "grey":  # grey files keep the older config
+            config.update(inputs=self.hparams.inputs, census_window=self.hparams.census_window)
+        return config
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         return self.model(image)

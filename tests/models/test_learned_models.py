@@ -333,9 +333,10 @@ def test_siamese_cost_finds_shift_on_textured_pair(textured_pair):
     assert (wta == d).float().mean() > 0.9
 
 
-def test_patch_features_equal_dense_features():
+@pytest.mark.parametrize("inputs", ["grey", "census"])
+def test_patch_features_equal_dense_features(inputs):
     torch.manual_seed(0)
-    net = SiameseNet(channels=8, layers=3)
+    net = SiameseNet(channels=8, layers=3, inputs=inputs, census_window=5)
     img = torch.rand(2, 3, 20, 30)
     dense = net(img)
     x = torch.tensor([[0.0, 5, 29], [3, 7, 12]])
@@ -343,6 +344,32 @@ def test_patch_features_equal_dense_features():
     patches = net.patch_features(img, x, y)
     ref = torch.stack([dense[b, :, y[b].long(), x[b].long()] for b in range(2)])
     assert torch.allclose(patches, ref, atol=1e-5)
+
+
+def test_census_input_tower_sees_only_the_local_order(textured_pair):
+    """inputs="census": features unchanged by a monotonic change of intensity (the grey tower's change), the
+    receptive field is the census ring plus the convolutions (a change 6 px away is not seen with 5x5 + 3
+    layers, one 5 px away is), it still finds the shift untrained, and bad arguments name themselves."""
+    left, right, d = textured_pair
+    torch.manual_seed(0)
+    net = SiameseNet(channels=16, layers=3, inputs="census", census_window=5)
+    grey = SiameseNet(channels=16, layers=3)
+    assert net.radius == 5 and net.tower[0].in_channels == 24 and grey.radius == 3
+    bent = left.clamp(0, 1) ** 2.2 * 0.5 + 0.1
+    with torch.no_grad():
+        assert torch.allclose(net(bent), net(left), atol=1e-6)
+        assert not torch.allclose(grey(bent), grey(left), atol=1e-3)
+        cost = siamese_cost_volume(net(left), net(right), 10)
+        assert (cost.argmin(1)[..., 10:] == d).float().mean() > 0.9
+        base = net(left)
+        for dist, seen in ((6, False), (5, True)):
+            moved = left.clone()
+            moved[..., 20, 20 + dist] = 1.0 - moved[..., 20, 20 + dist]
+            assert (not torch.allclose(net(moved)[..., 20, 20], base[..., 20, 20], atol=1e-6)) == seen
+    with pytest.raises(StereoInputError, match="inputs"):
+        SiameseNet(inputs="rgb")
+    with pytest.raises(StereoInputError, match="census_window"):
+        SiameseNet(inputs="census", census_window=4)
 
 
 def test_siamese_loss_prefers_true_disparity(textured_pair):
@@ -391,6 +418,25 @@ def test_siamese_distillation_term(textured_pair):
         opt.step()
     assert term().item() < 0.5 * first, first
     assert all(p.grad is None for p in other.parameters())
+
+
+def test_census_siamese_module_writes_a_file_that_loads_the_same_tower(tmp_path, textured_pair):
+    """SiameseModule(inputs="census") puts the input kind in the file's config (grey files keep the older
+    config), the loaded tower gives the same features, and init_weights of another kind is refused naming both."""
+    from stereonet.training.module import SiameseModule
+
+    left = textured_pair[0]
+    module = SiameseModule(channels=8, layers=2, inputs="census", census_window=3)
+    assert module.model_config() == {"channels": 8, "layers": 2, "inputs": "census", "census_window": 3}
+    assert SiameseModule(channels=8, layers=2).model_config() == {"channels": 8, "layers": 2}
+    path = tmp_path / "siamese.pt"
+    save_weights(path, "siamese", module.model_config(), module.model)
+    net, _ = load_weights(path, expected="siamese")
+    assert net.inputs == "census" and net.census_window == 3
+    with torch.no_grad():
+        assert torch.equal(net(left), module.model(left))
+    with pytest.raises(ValueError, match="holds a tower of 8 channels x 2 layers on census 3x3, expected 8 channels x 2 layers$"):
+        SiameseModule(channels=8, layers=2, init_weights=str(path))
 
 
 def test_weights_roundtrip_and_errors(tmp_path, small_dispnet):
