@@ -48,13 +48,25 @@ class BPResult(NamedTuple):
     """Output of :func:`belief_propagation`.
 
     disparity: :math:`(B, 1, H, W)` float, integer-valued argmin of the beliefs.
-    beliefs: :math:`(B, D, H, W)` min-sum beliefs (lower = better), data cost plus incoming messages.
+    beliefs: :math:`(B, D, H, W)` min-sum beliefs (lower = better), data cost plus incoming messages; None when
+        :func:`belief_propagation` ran with ``keep_beliefs=False``.
     energy: :math:`(B,)` float64 MRF energy of ``disparity``.
+    near: :math:`(B, 3, H, W)` the beliefs at ``disparity - 1``, ``disparity``, ``disparity + 1`` (the label's own
+        value where a neighbour lies outside the range): what a sub-pixel fit reads
+        (:func:`stereonet.select.subpixel.refine_from_neighbours`), kept in either case.
     """
 
     disparity: torch.Tensor
-    beliefs: torch.Tensor
+    beliefs: torch.Tensor | None
     energy: torch.Tensor
+    near: torch.Tensor
+
+
+def _near(beliefs: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+    """:attr:`BPResult.near` from a belief volume and its long labels :math:`(B, 1, H, W)`."""
+    n = beliefs.shape[1]
+    return torch.cat([beliefs.gather(1, (labels - 1).clamp(min=0)), beliefs.gather(1, labels),
+                      beliefs.gather(1, (labels + 1).clamp(max=n - 1))], dim=1)
 
 
 def _shift(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:
@@ -190,7 +202,7 @@ def _slopes(smoothness: float, weights_right: torch.Tensor, weights_down: torch.
 def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float = 2.0, iterations: int = 5,
                        levels: int = 4, weights_right: torch.Tensor | None = None,
                        weights_down: torch.Tensor | None = None, backend: str = "auto",
-                       precision: str = "float") -> BPResult:
+                       precision: str = "float", keep_beliefs: bool = True) -> BPResult:
     """Coarse-to-fine min-sum loopy BP with truncated-linear smoothness (see the module docstring).
 
     Args:
@@ -206,6 +218,9 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             ``1/s``, ``s`` up to 1024; on that grid min-sum is exact integer arithmetic, so the result is the float
             kernel's on the rounded inputs), with half the message memory; coarser levels, a float64 cost and
             the torch backend stay in floating point.
+        keep_beliefs: return the belief volume (``False``: ``beliefs`` is None, and on the numba path with more than
+            one level the volume is never allocated, each row's beliefs live in a scratch row: a fifth less memory
+            touched on a KITTI pair; ``near`` keeps what a sub-pixel fit needs). The labels are the same either way.
     Returns:
         :class:`BPResult`. Not differentiable (``argmin``); the inputs are detached.
     """
@@ -287,6 +302,7 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
         out_dtype = np.dtype(np.float32) if fixed[0] else costs[0].dtype
         belief_scale = np.array([1.0 / scale if fixed[0] else 1.0], dtype=out_dtype)
         labels_rows = empty_array((B, H, W), np.int64)
+        near = None
         if result is None:  # one level: from zero messages, the beliefs written over the final messages (a view)
             zero = empty_array((B, H, 4, D, W), costs[0].dtype, zero=True)
             result = _run_level_numba(costs[0], zero, slope_arrays[0], iterations)
@@ -297,13 +313,17 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             coarse = _in_dtype(result, costs[0].dtype, scale)
             del result
             rings, k = _wavefront_rings(iterations + 1, D, W, costs[0].dtype)
-            beliefs_rows = empty_array((B, H, D, W), out_dtype)
-            bp_finest(costs[0], coarse, rings, slope_arrays[0], int(iterations), beliefs_rows, labels_rows,
-                      belief_scale, k)
+            beliefs_rows = empty_array((B, H if keep_beliefs else 0, D, W), out_dtype)
+            near_np = empty_array((B, 3, H, W), out_dtype)
+            bp_finest(costs[0], coarse, rings, slope_arrays[0], int(iterations), beliefs_rows, near_np,
+                      labels_rows, belief_scale, k)
+            near = torch.from_numpy(near_np).to(cost.device)
             del coarse, rings
         del costs
         beliefs = torch.from_numpy(beliefs_rows).permute(0, 2, 1, 3).to(cost.device)  # BxDxHxW view
         labels = torch.from_numpy(labels_rows).unsqueeze(1).to(cost.device)
+        if near is None:
+            near = _near(beliefs, labels)
     else:
         pyramid = [cost]
         for _ in range(levels - 1):
@@ -324,5 +344,6 @@ def belief_propagation(cost: torch.Tensor, smoothness: float, truncation: float 
             beliefs += m
         del messages_t
         labels = beliefs.argmin(dim=1, keepdim=True)
+        near = _near(beliefs, labels)
     energy = grid_energy(cost, labels, smoothness, truncation, weights_right, weights_down)
-    return BPResult(labels.to(cost.dtype), beliefs, energy)
+    return BPResult(labels.to(cost.dtype), beliefs if keep_beliefs else None, energy, near)

@@ -385,6 +385,19 @@ def _beliefs_row(cost, m, b, y, s, bel, best, lab, dst):  # pragma: no cover - c
         dst[x] = final[x]
 
 
+@njit(cache=True, fastmath=False)
+def _near_row(bel, lab, lo, mid, hi):  # pragma: no cover - compiled
+    """Beliefs ``bel (D, W)`` of one row at each pixel's label ``lab (W,)`` and its two neighbours, into ``lo``,
+    ``mid``, ``hi (W,)``; a neighbour outside ``0 .. D - 1`` takes the label's own value."""
+    D = bel.shape[0]
+    for x in range(bel.shape[1]):
+        d = lab[x]
+        c0 = bel[d, x]
+        mid[x] = c0
+        lo[x] = bel[d - 1, x] if d > 0 else c0
+        hi[x] = bel[d + 1, x] if d < D - 1 else c0
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def beliefs_argmin(cost, messages, labels, scale):  # pragma: no cover - compiled
     """``beliefs = (cost + m0 + m1 + m2 + m3) * scale`` (summed left to right), written over the messages, and
@@ -415,7 +428,7 @@ def beliefs_argmin(cost, messages, labels, scale):  # pragma: no cover - compile
 
 
 @njit(parallel=True, cache=True, fastmath=False)
-def bp_finest(cost, coarse, rings, slopes, iterations, beliefs, labels, scale, rows_per_step=ROWS_PER_STEP):  # pragma: no cover
+def bp_finest(cost, coarse, rings, slopes, iterations, beliefs, near, labels, scale, rows_per_step=ROWS_PER_STEP):  # pragma: no cover
     """The finest level of the pyramid without its full message sets: :func:`bp_level` started from the coarse
     level's messages, then :func:`beliefs_argmin`, in one wavefront.
 
@@ -428,6 +441,10 @@ def bp_finest(cost, coarse, rings, slopes, iterations, beliefs, labels, scale, r
     dependency as an iteration's on the one before, so the same two-block lag keeps it exact and the ring bound
     holds. The same numbers as upsampling into a full message set, :func:`bp_level` and :func:`beliefs_argmin`;
     what it saves is the two full message sets' traffic (the upsampled start and the final set).
+
+    ``near (B, 3, H, W)`` (``scale``'s dtype) receives each pixel's beliefs at ``label - 1``, ``label``, ``label + 1``
+    (the label's own value where a neighbour lies outside ``0 .. D - 1``): all a sub-pixel fit reads. A ``beliefs``
+    array with no rows (shape ``(B, 0, D, W)``) keeps no belief volume: each row's beliefs go to a scratch row.
     """
     B, H, D, W = cost.shape
     K = max(1, rows_per_step)
@@ -439,28 +456,29 @@ def bp_finest(cost, coarse, rings, slopes, iterations, beliefs, labels, scale, r
         for strip in prange(2):
             for t in range(split):
                 for j in range(J + 1):
-                    _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, labels, scale, b, j,
+                    _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, near, labels, scale, b, j,
                                   _strip_block(t, j, strip, n_blocks, nA, nB), K)
         for t in range(split, nA + 2 * J):
             for item in prange(2 * (J + 1)):
                 j = item % (J + 1)
-                _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, labels, scale, b, j,
+                _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, near, labels, scale, b, j,
                               _strip_block(t, j, item // (J + 1), n_blocks, nA, nB), K)
 
 
 @njit(cache=True, fastmath=False)
-def _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, labels, scale, b, j, blk, K):  # pragma: no cover
+def _finest_block(cost, coarse, rings, R, M, slopes, J, beliefs, near, labels, scale, b, j, blk, K):  # pragma: no cover
     """Stage ``j`` of :func:`bp_finest` on block ``blk`` (nothing when ``blk < 0``): an iteration (``j < J``; the
-    first one reads the upsampled coarse messages), or the beliefs and labels (``j == J``)."""
+    first one reads the upsampled coarse messages), or the beliefs, labels and ``near`` values (``j == J``)."""
     if blk < 0:
         return
     H, D, W = cost.shape[1], cost.shape[2], cost.shape[3]
     for y in range(blk * K, min(blk * K + K, H)):
         if j == J:
-            bel = beliefs[b, y]
+            bel = beliefs[b, y] if beliefs.shape[1] > 0 else np.empty((D, W), dtype=scale.dtype)
             best = np.empty((2, W), dtype=bel.dtype)
             lab = np.empty((2, W), dtype=np.int64)
             _beliefs_row(cost, rings[J - 1][_row_index(y, R, M)], b, y, scale[0], bel, best, lab, labels[b, y])
+            _near_row(bel, labels[b, y], near[b, 0, y], near[b, 1, y], near[b, 2, y])
         elif j == 0:
             src = np.empty((1, 4, D, W), dtype=cost.dtype)
             _upsample_row(coarse[b, y // 2].reshape(4 * D, coarse.shape[4]), src[0].reshape(4 * D, W))

@@ -32,14 +32,23 @@ def subpixel_refine(cost: torch.Tensor, disp: torch.Tensor, method: str = "parab
     if method not in ("parabola", "equiangular"):
         raise StereoInputError(f"method: expected 'parabola' or 'equiangular', got {method!r}")
     d = disp.round().long().clamp(0, n - 1)
-    inner = (d > 0) & (d < n - 1)
-    c0 = cost.gather(1, d)
     cm = cost.gather(1, (d - 1).clamp(min=0))
+    c0 = cost.gather(1, d)
     cp = cost.gather(1, (d + 1).clamp(max=n - 1))
+    return refine_from_neighbours(d, cm, c0, cp, n, method)
+
+
+def refine_from_neighbours(d: torch.Tensor, cm: torch.Tensor, c0: torch.Tensor, cp: torch.Tensor, n: int,
+                           method: str = "parabola") -> torch.Tensor:
+    """:func:`subpixel_refine` from the three costs it reads: integer labels ``d`` (long, in ``0 .. n - 1``) and
+    the costs ``cm, c0, cp`` at ``d - 1, d, d + 1`` (any values where a neighbour lies outside the range), all of
+    one shape, for a matcher that keeps those values rather than the volume. The same numbers as
+    :func:`subpixel_refine` on the volume they came from."""
+    inner = (d > 0) & (d < n - 1)
     if method == "parabola":
         denom = 2.0 * (cm - 2.0 * c0 + cp)
     else:
         denom = 2.0 * torch.maximum(cm - c0, cp - c0)
     ok = inner & (denom > 0)
     offset = torch.where(ok, (cm - cp) / torch.where(ok, denom, torch.ones_like(denom)), torch.zeros_like(c0))
-    return d.to(cost.dtype) + offset.clamp(-0.5, 0.5)
+    return d.to(c0.dtype) + offset.clamp(-0.5, 0.5)

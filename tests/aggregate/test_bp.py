@@ -96,6 +96,37 @@ def test_bp_matcher(textured_pair):
     assert (out.disparity[..., 10:] - d).abs().max() < 0.5
 
 
+@pytest.mark.parametrize("precision,levels", [("int16", 3), ("float", 3), ("int16", 1)])
+def test_bp_matcher_without_the_belief_volume_gives_the_same_disparities(precision, levels):
+    """keep_beliefs=False (the matcher's default) returns no belief volume and the same disparity bits as refining
+    on the kept volume (subpixel_refine of the beliefs: the way the matcher refined before); belief_propagation's
+    ``near`` holds the beliefs at d - 1, d, d + 1 of the kept volume, whether the volume was kept or not."""
+    from stereonet.aggregate.bp import belief_propagation
+    from stereonet.select.subpixel import subpixel_refine
+
+    g = torch.Generator().manual_seed(3)
+    big = torch.rand(1, 3, 37, 70, generator=g)
+    left, right = big[..., 5:].contiguous(), big[..., :65].contiguous()
+    kept = match("bp", left, right, 12, precision=precision, levels=levels, keep_beliefs=True)
+    lean = match("bp", left, right, 12, precision=precision, levels=levels)
+    assert "beliefs" not in lean.extras and lean.extras["energy"].shape == (1,)
+    beliefs = kept.extras["beliefs"]
+    labels = beliefs.argmin(1, keepdim=True)
+    assert torch.equal(lean.disparity, kept.disparity) and torch.equal(lean.valid, kept.valid)
+    refined = subpixel_refine(beliefs, labels.to(beliefs.dtype))
+    inner = ~kept.extras["occlusion"]
+    assert torch.equal(lean.disparity[inner], refined[inner])
+    assert (lean.disparity != lean.disparity.round()).float().mean() > 0.5  # sub-pixel values, not integers
+    volume = kept.cost_volume
+    for keep in (True, False):
+        res = belief_propagation(volume, 0.3, 4.0, 5, levels, precision=precision, keep_beliefs=keep)
+        assert (res.beliefs is None) != keep
+        full = belief_propagation(volume, 0.3, 4.0, 5, levels, precision=precision).beliefs
+        d = res.disparity.long()
+        ref = torch.cat([full.gather(1, (d + k).clamp(0, volume.shape[1] - 1)) for k in (-1, 0, 1)], 1)
+        assert torch.equal(res.near, ref)
+
+
 def test_bad_inputs():
     cost = torch.rand(1, 4, 6, 8)
     with pytest.raises(StereoInputError, match="truncation"):
@@ -212,9 +243,20 @@ def test_finest_level_in_one_wavefront_equals_upsample_level_and_beliefs(dtype, 
     rings = np.full(ring_shape(iterations + 1, rows_per_step, D, W), fill, cost.dtype)
     beliefs = np.full((B, H, D, W), np.nan, scale_dtype)
     labels = np.full((B, H, W), -1, np.int64)
-    bp_finest(cost, coarse, rings, slopes, iterations, beliefs, labels, scale, rows_per_step)
+    near = np.full((B, 3, H, W), np.nan, scale_dtype)
+    bp_finest(cost, coarse, rings, slopes, iterations, beliefs, near, labels, scale, rows_per_step)
     assert np.isfinite(beliefs).all() and (labels >= 0).all()
     assert np.array_equal(beliefs, beliefs_ref) and np.array_equal(labels, labels_ref)
+    # near: the beliefs at label - 1, label, label + 1 (the label's own value beyond the range)
+    near_ref = np.stack([np.take_along_axis(beliefs_ref, np.clip(labels + k, 0, D - 1)[:, :, None], axis=2)[:, :, 0]
+                         for k in (-1, 0, 1)], axis=1)
+    assert (labels == 0).any() and np.array_equal(near, near_ref)
+    # without a belief volume (no rows): the same labels and near values, every row through a scratch row
+    labels2 = np.full((B, H, W), -1, np.int64)
+    near2 = np.full((B, 3, H, W), np.nan, scale_dtype)
+    bp_finest(cost, coarse, np.full_like(rings, fill), slopes, iterations, np.empty((B, 0, D, W), scale_dtype), near2,
+              labels2, scale, rows_per_step)
+    assert np.array_equal(labels2, labels_ref) and np.array_equal(near2, near_ref)
 
 
 def test_one_iteration_writes_every_slot_of_a_fresh_final_set():

@@ -89,6 +89,21 @@ def test_subpixel_recovers_vertex(method):
     assert ref.item() == pytest.approx(true, abs=1e-9)
 
 
+@pytest.mark.parametrize("method", ["parabola", "equiangular"])
+def test_refine_from_neighbours_is_subpixel_refine(method):
+    """The three-value form gives subpixel_refine's bits, the range's ends included (offset 0 there)."""
+    from stereonet.select.subpixel import refine_from_neighbours
+
+    g = torch.Generator().manual_seed(0)
+    cost = torch.rand(2, 7, 5, 6, generator=g)
+    d = wta(cost)[0].long()
+    d[0, 0, 0, :3] = torch.tensor([0, 6, 3])
+    near = [cost.gather(1, (d + k).clamp(0, 6)) for k in (-1, 0, 1)]
+    out = refine_from_neighbours(d, *near, 7, method)
+    assert torch.equal(out, subpixel_refine(cost, d.float(), method=method))
+    assert out[0, 0, 0, 0] == 0 and out[0, 0, 0, 1] == 6
+
+
 def test_subpixel_boundary_and_flat():
     cost = torch.zeros(1, 5, 1, 2, dtype=torch.float64)
     cost[0, :, 0, 1] = torch.tensor([0.0, 1, 2, 3, 4])
