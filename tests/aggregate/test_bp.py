@@ -106,7 +106,7 @@ def test_bp_matcher_without_the_belief_volume_gives_the_same_disparities(precisi
 
     g = torch.Generator().manual_seed(3)
     big = torch.rand(1, 3, 37, 70, generator=g)
-    left, right = big[..., 5:].contiguous(), big[..., :65].contiguous()
+    left, right = big[..., :65].contiguous(), big[..., 5:].contiguous()  # disparity 5
     kept = match("bp", left, right, 12, precision=precision, levels=levels, keep_beliefs=True)
     lean = match("bp", left, right, 12, precision=precision, levels=levels)
     assert "beliefs" not in lean.extras and lean.extras["energy"].shape == (1,)
@@ -117,6 +117,7 @@ def test_bp_matcher_without_the_belief_volume_gives_the_same_disparities(precisi
     inner = ~kept.extras["occlusion"]
     assert torch.equal(lean.disparity[inner], refined[inner])
     assert (lean.disparity != lean.disparity.round()).float().mean() > 0.5  # sub-pixel values, not integers
+    assert ((lean.disparity[..., 12:] - 5).abs() < 1).float().mean() > 0.9
     volume = kept.cost_volume
     for keep in (True, False):
         res = belief_propagation(volume, 0.3, 4.0, 5, levels, precision=precision, keep_beliefs=keep)
