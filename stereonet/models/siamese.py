@@ -22,7 +22,7 @@ from stereonet.models.layers import standardize_image
 INVALID_COST = 2.0
 """Cost of a pixel whose match would fall outside the right image: the largest possible 1 - <f_l, f_r>."""
 
-INPUTS = ("grey", "census")
+INPUTS = ("grey", "census", "grey+census")
 """What the tower's first convolution reads (``inputs`` of :class:`SiameseNet`)."""
 
 PRECISIONS = ("auto", "float32", "bfloat16")
@@ -54,11 +54,12 @@ class SiameseNet(nn.Module):
     Args:
         channels: feature width of every layer.
         layers: number of 3x3 conv layers.
-        inputs: ``"grey"`` (the standardised grey image, MC-CNN's input) or ``"census"``: the first convolution
+        inputs: ``"grey"`` (the standardised grey image, MC-CNN's input), ``"census"``: the first convolution
             reads the ``census_window**2 - 1`` census comparisons of each pixel with its neighbours
             (:func:`~stereonet.cost.census.census_signs`, ±1 / sqrt(n)) instead of the grey level, so the features
-            cannot depend on the image's intensities beyond their local order.
-        census_window: odd census window of ``inputs="census"`` (>= 3).
+            cannot depend on the image's intensities beyond their local order; or ``"grey+census"``: both (the grey
+            level as one more channel before the comparisons).
+        census_window: odd census window of the census inputs (>= 3).
 
     The receptive field is ``2 * radius + 1`` with ``radius = layers`` (grey) or ``layers + census_window // 2``.
     """
@@ -69,16 +70,16 @@ class SiameseNet(nn.Module):
             raise StereoInputError(f"layers: expected >= 1, got {layers}")
         if inputs not in INPUTS:
             raise StereoInputError(f"inputs: expected one of {', '.join(map(repr, INPUTS))}, got {inputs!r}")
-        if inputs == "census" and (isinstance(census_window, bool) or not isinstance(census_window, int)
+        if inputs != "grey" and (isinstance(census_window, bool) or not isinstance(census_window, int)
                                    or census_window < 3 or census_window % 2 == 0):
             raise StereoInputError(f"census_window: expected an odd integer >= 3, got {census_window!r}")
         self.channels, self.layers, self.inputs = int(channels), int(layers), inputs
-        self.census_window = int(census_window) if inputs == "census" else 0
+        self.census_window = int(census_window) if inputs != "grey" else 0
         self.census_radius = self.census_window // 2
         # each unpadded 3x3 conv shrinks the map by one pixel per side, and so does each census ring
         self.radius = self.layers + self.census_radius
         mods: list[nn.Module] = []
-        in_ch = 1 if inputs == "grey" else self.census_window ** 2 - 1
+        in_ch = (inputs != "census") + (self.census_window ** 2 - 1 if inputs != "grey" else 0)
         for i in range(self.layers):
             mods.append(nn.Conv2d(in_ch, self.channels, 3))
             if i < self.layers - 1:
@@ -87,13 +88,15 @@ class SiameseNet(nn.Module):
         self.tower = nn.Sequential(*mods)
 
     def _first_input(self, padded: torch.Tensor) -> torch.Tensor:
-        """The first convolution's input from the padded standardised grey image: itself, or (census) the
-        census comparisons of the pixels whose whole census window lies inside it (``census_radius`` fewer
-        per side)."""
+        """The first convolution's input from the padded standardised grey image: itself, or (census inputs)
+        the census comparisons of the pixels whose whole census window lies inside it (``census_radius`` fewer
+        per side), after the grey level of those pixels for ``"grey+census"``."""
         if self.inputs == "grey":
             return padded
         r = self.census_radius
-        return census_signs(padded, self.census_window)[..., r:padded.shape[-2] - r, r:padded.shape[-1] - r]
+        inner = (..., slice(r, padded.shape[-2] - r), slice(r, padded.shape[-1] - r))
+        signs = census_signs(padded, self.census_window)[inner]
+        return signs if self.inputs == "census" else torch.cat([padded[inner], signs], dim=1)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """Unit-length features :math:`(B, F, H, W)` of an image :math:`(B, C, H, W)` in [0, 1].
@@ -130,15 +133,25 @@ class SiameseNet(nn.Module):
         b, n = x.shape
         grey = F.pad(standardize_image(image, grey=True), (self.radius,) * 4, mode="replicate")  # Bx1x(H+2r)x(W+2r)
         hp, wp = grey.shape[-2:]
-        offs = torch.arange(-self.radius, self.radius + 1, device=x.device, dtype=x.dtype)
-        px = x[:, :, None, None] + self.radius + offs[None, None, None, :]  # BxNx1xK (padded coordinates)
-        py = y[:, :, None, None] + self.radius + offs[None, None, :, None]  # BxNxKx1
+        offs = torch.arange(-self.radius, self.radius + 1, device=x.device)
         k = offs.numel()
-        grid = torch.stack([((2 * px + 1) / wp - 1).expand(b, n, k, k), ((2 * py + 1) / hp - 1).expand(b, n, k, k)],
-                           dim=-1)  # BxNxKxKx2
-        patches = F.grid_sample(grey, grid.reshape(b, n * k, k, 2), mode="bilinear", padding_mode="border",
-                                align_corners=False)  # Bx1x(N*K)xK
-        patches = patches.reshape(b, n, k, k).reshape(b * n, 1, k, k)  # (B*N)x1xKxK
+        # bilinear by hand rather than grid_sample: at integer positions the weights are exactly 1 and 0, so a
+        # patch holds the padded image's own values (grid_sample's coordinate round trip is off by ~1e-7, enough
+        # to break the exact ties of replicate padding that census comparisons see)
+        x0, y0 = x.floor(), y.floor()
+        fx, fy = (x - x0)[:, :, None, None], (y - y0)[:, :, None, None]  # BxNx1x1
+        cols = (x0.long() + self.radius)[:, :, None] + offs  # BxNxK (padded coordinates)
+        rows = (y0.long() + self.radius)[:, :, None] + offs
+        flat = grey.reshape(b, hp * wp)
+
+        def corner(dy: int, dx: int) -> torch.Tensor:  # BxNxKxK values at (rows + dy, cols + dx), border-clamped
+            r = (rows + dy).clamp(0, hp - 1)[:, :, :, None]
+            c = (cols + dx).clamp(0, wp - 1)[:, :, None, :]
+            return flat.gather(1, (r * wp + c).reshape(b, -1)).reshape(b, n, k, k)
+
+        patches = ((1 - fy) * ((1 - fx) * corner(0, 0) + fx * corner(0, 1))
+                   + fy * ((1 - fx) * corner(1, 0) + fx * corner(1, 1)))
+        patches = patches.reshape(b * n, 1, k, k)  # (B*N)x1xKxK
         feats = F.normalize(self.tower(self._first_input(patches)).reshape(b, n, -1), dim=2)  # BxNxF
         return feats.transpose(1, 2)
 

@@ -354,7 +354,7 @@ class SiameseModule(StereoModule):
 
     @staticmethod
     def _shape(net: SiameseNet) -> str:
-        census = f" on census {net.census_window}x{net.census_window}" if net.inputs == "census" else ""
+        census = f" on {net.inputs} {net.census_window}x{net.census_window}" if net.inputs != "grey" else ""
         return f"{net.channels} channels x {net.layers} layers{census}"
 
     def model_config(self) -> dict:

@@ -333,7 +333,7 @@ def test_siamese_cost_finds_shift_on_textured_pair(textured_pair):
     assert (wta == d).float().mean() > 0.9
 
 
-@pytest.mark.parametrize("inputs", ["grey", "census"])
+@pytest.mark.parametrize("inputs", ["grey", "census", "grey+census"])
 def test_patch_features_equal_dense_features(inputs):
     torch.manual_seed(0)
     net = SiameseNet(channels=8, layers=3, inputs=inputs, census_window=5)
@@ -344,6 +344,25 @@ def test_patch_features_equal_dense_features(inputs):
     patches = net.patch_features(img, x, y)
     ref = torch.stack([dense[b, :, y[b].long(), x[b].long()] for b in range(2)])
     assert torch.allclose(patches, ref, atol=1e-5)
+    if inputs != "grey":  # census signs are discontinuous in the image: grid_sample's ~1e-7 flips tied signs
+        return
+    # fractional positions (sub-pixel positives): the bilinear patches torch's grid_sample samples
+    import torch.nn.functional as F
+
+    from stereonet.models.layers import standardize_image
+
+    xf, yf = x.clamp(max=28.6) + 0.4, y.clamp(max=18.75) + 0.25
+    grey = F.pad(standardize_image(img, grey=True), (net.radius,) * 4, mode="replicate")
+    hp, wp = grey.shape[-2:]
+    offs = torch.arange(-net.radius, net.radius + 1, dtype=torch.float32)
+    k = offs.numel()
+    px = (xf[:, :, None, None] + net.radius + offs).expand(2, 3, k, k)
+    py = (yf[:, :, None, None] + net.radius + offs[:, None]).expand(2, 3, k, k)
+    grid = torch.stack([(2 * px + 1) / wp - 1, (2 * py + 1) / hp - 1], dim=-1).reshape(2, 3 * k, k, 2)
+    sampled = F.grid_sample(grey, grid, mode="bilinear", padding_mode="border", align_corners=False)
+    with torch.no_grad():
+        feats = net.tower(net._first_input(sampled.reshape(6, 1, k, k))).reshape(2, 3, -1)
+    assert torch.allclose(net.patch_features(img, xf, yf), F.normalize(feats, dim=2).transpose(1, 2), atol=1e-4)
 
 
 def test_census_input_tower_sees_only_the_local_order(textured_pair):
@@ -366,6 +385,11 @@ def test_census_input_tower_sees_only_the_local_order(textured_pair):
             moved = left.clone()
             moved[..., 20, 20 + dist] = 1.0 - moved[..., 20, 20 + dist]
             assert (not torch.allclose(net(moved)[..., 20, 20], base[..., 20, 20], atol=1e-6)) == seen
+    both = SiameseNet(channels=16, layers=3, inputs="grey+census", census_window=5)
+    assert both.radius == 5 and both.tower[0].in_channels == 25
+    with torch.no_grad():  # the grey channel is the standardised grey level of the same pixels
+        assert torch.equal(both._first_input(torch.arange(81.0).view(1, 1, 9, 9))[:, 0], torch.arange(81.0).view(9, 9)[2:7, 2:7][None])
+        assert not torch.allclose(both(bent), both(left), atol=1e-3)
     with pytest.raises(StereoInputError, match="inputs"):
         SiameseNet(inputs="rgb")
     with pytest.raises(StereoInputError, match="census_window"):
