@@ -144,3 +144,24 @@ def test_siamese_precision_option(weights):
     pytest.importorskip("onnxruntime", reason="onnxruntime (optional extra) is not installed")
     with pytest.raises(StereoInputError, match="precision: 'bfloat16' runs on backend='torch' only"):
         match("siamese", left, right, 16, checkpoint=str(weights["siamese"]), backend="onnx", precision="bfloat16")
+
+
+@pytest.mark.parametrize("inputs", ["census", "grey+census"])
+def test_census_input_towers_run_through_every_siamese_path(tmp_path, inputs):
+    """A weights file of a census-input tower runs in the three Siamese matchers (float32 and bfloat16), finds a
+    constant shift untrained (census comparisons of random texture), and exports to ONNX with the same features."""
+    torch.manual_seed(0)
+    path = tmp_path / "siamese.pt"
+    cfg = {"channels": 8, "layers": 2, "inputs": inputs, "census_window": 5}
+    save_weights(path, "siamese", cfg, SiameseNet(**cfg))
+    big = torch.rand(1, 3, 40, 110, generator=torch.Generator().manual_seed(3))
+    left, right = big[..., 10:100].contiguous(), big[..., 16:106].contiguous()  # disparity 6 everywhere
+    for name in ("siamese", "siamese-sgm", "siamese-census-sgm"):
+        for precision in ("float32", "bfloat16"):
+            out = match(name, left, right, 12, checkpoint=str(path), precision=precision)
+            assert ((out.disparity[..., 12:] - 6).abs() < 1).float().mean() > 0.9, (name, precision)
+    pytest.importorskip("onnxruntime", reason="onnxruntime (optional extra) is not installed")
+    from stereonet.export import export_onnx
+
+    report = export_onnx("siamese", tmp_path / "siamese.onnx", path, 40, 90, 12)
+    assert report.graph_difference < 1e-4 and report.valid_agree
