@@ -57,14 +57,13 @@ def _refine(volume: torch.Tensor, disp: torch.Tensor, subpixel: bool) -> torch.T
     return subpixel_refine(volume, disp)
 
 
-def _occlusion_filled(volume: torch.Tensor | None, labels: torch.Tensor, subpixel: bool,
-                      refined: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Integer labels -> (disparity, valid, occlusion): pixels the map itself declares left-occluded
-    (:func:`~stereonet.aggregate.mrf.left_occlusions_from_disparity`) are invalid and take the
-    disparity of their nearest visible left neighbour (the textbook scanline fill); the rest are refined on
-    ``volume``, or take ``refined`` (the labels refined already) when it is given."""
+def _occlusion_filled(labels: torch.Tensor, refined: torch.Tensor
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Integer labels and their refined map -> (disparity, valid, occlusion): pixels the labels themselves declare
+    left-occluded (:func:`~stereonet.aggregate.mrf.left_occlusions_from_disparity`) are invalid and take the
+    disparity of their nearest visible left neighbour (the textbook scanline fill); the rest keep ``refined``."""
     occlusion = left_occlusions_from_disparity(labels)
-    disp = scanline_fill(_refine(volume, labels, subpixel) if refined is None else refined, ~occlusion, "left")
+    disp = scanline_fill(refined, ~occlusion, "left")
     return disp, ~occlusion, occlusion
 
 
@@ -102,7 +101,7 @@ def _dp(left, volume, mode, occlusion_cost, smoothness, truncation, subpixel) ->
     else:  # "energy"
         weights, _ = contrast_edge_weights(left)
         res = energy_dp(volume, smoothness, truncation, weights=weights)
-        disp, valid, extras["occlusion"] = _occlusion_filled(volume, res.disparity, subpixel)
+        disp, valid, extras["occlusion"] = _occlusion_filled(res.disparity, _refine(volume, res.disparity, subpixel))
         extras["energy"] = res.energy
     return StereoOutput(disp, valid, cost_volume=volume, extras=extras)
 
@@ -144,12 +143,12 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
     with inputs_checked(volume):  # built here from checked images: no second pass over it
         res = belief_propagation(volume, smoothness, truncation, iterations, levels, wr, wd, precision=precision,
                                  keep_beliefs=keep_beliefs)
-    refined = None
+    refined = res.disparity
     if subpixel:  # the parabola through the beliefs at d - 1, d, d + 1 (subpixel_refine on the belief volume)
         from stereonet.select.subpixel import refine_from_neighbours
 
         refined = refine_from_neighbours(res.disparity.long(), *res.near.split(1, dim=1), volume.shape[1])
-    disp, valid, occlusion = _occlusion_filled(None, res.disparity, subpixel, refined)
+    disp, valid, occlusion = _occlusion_filled(res.disparity, refined)
     extras = {"energy": res.energy, "occlusion": occlusion}
     if keep_beliefs:
         extras["beliefs"] = res.beliefs
@@ -171,5 +170,5 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
                                   contrast_factor)
     with inputs_checked(volume):  # built here from checked images: no second pass over it
         res = alpha_expansion(volume, smoothness, truncation, cycles, None, wr, wd)
-    disp, valid, occlusion = _occlusion_filled(volume, res.disparity, subpixel)
+    disp, valid, occlusion = _occlusion_filled(res.disparity, _refine(volume, res.disparity, subpixel))
     return StereoOutput(disp, valid, cost_volume=volume, extras={"energy": res.energy, "occlusion": occlusion})
