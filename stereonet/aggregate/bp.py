@@ -42,6 +42,7 @@ from stereonet.aggregate.mrf import (
 )
 from stereonet.checks import StereoInputError, check_cost_volume, check_finite
 from stereonet.kernels import empty_array, use_numba
+from stereonet.select.subpixel import neighbour_costs
 
 
 class BPResult(NamedTuple):
@@ -64,9 +65,7 @@ class BPResult(NamedTuple):
 
 def _near(beliefs: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
     """:attr:`BPResult.near` from a belief volume and its long labels :math:`(B, 1, H, W)`."""
-    n = beliefs.shape[1]
-    return torch.cat([beliefs.gather(1, (labels - 1).clamp(min=0)), beliefs.gather(1, labels),
-                      beliefs.gather(1, (labels + 1).clamp(max=n - 1))], dim=1)
+    return torch.cat(neighbour_costs(beliefs, labels), dim=1)
 
 
 def _shift(x: torch.Tensor, dy: int, dx: int) -> torch.Tensor:

@@ -32,10 +32,14 @@ def subpixel_refine(cost: torch.Tensor, disp: torch.Tensor, method: str = "parab
     if method not in ("parabola", "equiangular"):
         raise StereoInputError(f"method: expected 'parabola' or 'equiangular', got {method!r}")
     d = disp.round().long().clamp(0, n - 1)
-    cm = cost.gather(1, (d - 1).clamp(min=0))
-    c0 = cost.gather(1, d)
-    cp = cost.gather(1, (d + 1).clamp(max=n - 1))
-    return refine_from_neighbours(d, cm, c0, cp, n, method)
+    return refine_from_neighbours(d, *neighbour_costs(cost, d), n, method)
+
+
+def neighbour_costs(cost: torch.Tensor, d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The costs :math:`(B, 1, H, W)` at ``d - 1``, ``d``, ``d + 1`` of a volume :math:`(B, D, H, W)` for long labels
+    ``d`` in ``0 .. D - 1``; a neighbour outside the range takes the label's own cost."""
+    n = cost.shape[1]
+    return cost.gather(1, (d - 1).clamp(min=0)), cost.gather(1, d), cost.gather(1, (d + 1).clamp(max=n - 1))
 
 
 def refine_from_neighbours(d: torch.Tensor, cm: torch.Tensor, c0: torch.Tensor, cp: torch.Tensor, n: int,
