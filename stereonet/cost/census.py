@@ -75,7 +75,7 @@ def census_transform(img: torch.Tensor, window: int = 5) -> torch.Tensor:
     return torch.cat(words, dim=1)  # BxKxHxW
 
 
-def census_signs(img: torch.Tensor, window: int = 5) -> torch.Tensor:
+def census_signs(img: torch.Tensor, window: int = 5, pad: bool = True) -> torch.Tensor:
     """The census comparisons as a unit-length float feature vector per pixel, for networks that match with
     correlations (:func:`stereonet.cost.correlation.correlation_1d` and the warped correlations of the models).
 
@@ -87,20 +87,25 @@ def census_signs(img: torch.Tensor, window: int = 5) -> torch.Tensor:
     Args:
         img: :math:`(B, C, H, W)` image (colour is converted to grey first).
         window: odd census window size (>= 3).
+        pad: replicate-pad the image by ``window // 2`` so every pixel gets its comparisons (default); False: only
+            the pixels whose whole window lies inside the image, ``window // 2`` fewer per side (the same values there).
 
     Returns:
-        :math:`(B, n, H, W)` float, the image's dtype.
+        :math:`(B, n, H, W)` float, the image's dtype (``H - 2r, W - 2r`` without ``pad``).
     """
     _check_census_args(img, window)
     grey = to_grey(img)
-    b, _, h, w = grey.shape
     r = window // 2
-    patches = F.unfold(F.pad(grey, (r, r, r, r), mode="replicate"), window).view(b, window * window, h, w)
+    if pad:
+        grey = F.pad(grey, (r, r, r, r), mode="replicate")
+    b, _, hp, wp = grey.shape
+    h, w = hp - 2 * r, wp - 2 * r
+    patches = F.unfold(grey, window).view(b, window * window, h, w)
     centre = (window * window) // 2
     neighbours = torch.cat([patches[:, :centre], patches[:, centre + 1:]], dim=1)
     n = window * window - 1
     unit = 1.0 / float(np.sqrt(n))
-    return torch.where(neighbours < grey, unit, -unit).to(grey.dtype)
+    return torch.where(neighbours < patches[:, centre:centre + 1], unit, -unit).to(grey.dtype)
 
 
 def popcount(x: torch.Tensor) -> torch.Tensor:

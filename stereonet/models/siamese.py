@@ -93,10 +93,11 @@ class SiameseNet(nn.Module):
         per side), after the grey level of those pixels for ``"grey+census"``."""
         if self.inputs == "grey":
             return padded
+        signs = census_signs(padded, self.census_window, pad=False)
+        if self.inputs == "census":
+            return signs
         r = self.census_radius
-        inner = (..., slice(r, padded.shape[-2] - r), slice(r, padded.shape[-1] - r))
-        signs = census_signs(padded, self.census_window)[inner]
-        return signs if self.inputs == "census" else torch.cat([padded[inner], signs], dim=1)
+        return torch.cat([padded[..., r:padded.shape[-2] - r, r:padded.shape[-1] - r], signs], dim=1)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """Unit-length features :math:`(B, F, H, W)` of an image :math:`(B, C, H, W)` in [0, 1].

@@ -123,6 +123,8 @@ def test_census_signs_are_the_census_bits_as_unit_vectors():
     assert torch.equal(census_signs(grey ** 3 * 0.7 + 0.1, 5), census_signs(grey, 5))  # any increasing change
     with pytest.raises(StereoInputError, match="census_window"):
         census_signs(img, 4)
+    inner = census_signs(img, 5, pad=False)  # only where the whole window is inside: the same values there
+    assert inner.shape == (2, 24, 5, 7) and torch.equal(inner, signs[..., 2:-2, 2:-2])
 
 
 def test_correlation_similarity_gradcheck_and_values():
