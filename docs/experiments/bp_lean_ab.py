@@ -13,10 +13,9 @@ import time
 import torch
 
 from stereonet.data import load_dataset
+from stereonet.evaluation import expand_data_specs
 from stereonet.matchers import get_matcher
 from stereonet.measure import PeakMemory, reuse_freed_memory
-
-SHARED = "/work/shared/data"  # ../shared/data of the checkout
 
 
 def faults() -> int:
@@ -28,11 +27,11 @@ def main(repeats: int) -> None:
     reuse_freed_memory()
     bp, sgbm = get_matcher("bp"), get_matcher("opencv-sgbm")
     pairs = []
-    for spec in ("middlebury2001", "middlebury2003", "kitti2012", "kitti2015"):
-        ds = load_dataset(f"{spec}:{SHARED}/{spec}")
+    for spec in expand_data_specs("real"):  # ../shared/data (or STEREONET_SHARED_DATA)
+        ds = load_dataset(spec)
         for i in range(len(ds)):
             item = ds[i]
-            pairs.append((f"{spec}/{item['name']}", item["left"][None].float(), item["right"][None].float(),
+            pairs.append((f"{spec.split(':')[0]}/{item['name']}", item["left"][None].float(), item["right"][None].float(),
                           int(item["max_disp"])))
     bp(pairs[0][1][..., :64, :64], pairs[0][2][..., :64, :64], 16)  # compile outside the timing
     ratios = []

@@ -17,6 +17,7 @@ import torch
 
 from stereonet.aggregate import graphcut as G
 from stereonet.data import load_dataset
+from stereonet.evaluation import expand_data_specs
 from stereonet.kernels.graphcut import expansion_terms
 from stereonet.matchers.energy import _mrf_problem
 
@@ -73,7 +74,8 @@ def reduced_cut(cap_right, cap_down, source, sink):
 
 def main() -> None:
     torch.set_num_threads(2)
-    item = load_dataset("middlebury2003:/work/shared/data/middlebury2003")[0]
+    cones = next(s for s in expand_data_specs("real") if s.startswith("middlebury2003:"))
+    item = load_dataset(cones)[0]
     left, right, max_disp = item["left"][None].float(), item["right"][None].float(), int(item["max_disp"])
     volume, wr, wd = _mrf_problem(left, right, max_disp, "census_ad", 3, None, 0.03, 3.0)
     cost = volume.double().numpy()[0]
