@@ -183,6 +183,12 @@ def sgm_aggregate_torch(cost: torch.Tensor, P1: float, P2: float, paths: int = 8
     P1, P2 = quantize_penalty(P1, penalty_step), quantize_penalty(P2, penalty_step)
     b, n, h, w = cost.shape
     p2 = p2_maps(P1, P2, directions, image, (b, h, w), p2_alpha, cost.dtype, cost.device, penalty_step)
+    return sgm_aggregate_maps_torch(cost, P1, p2, directions)
+
+
+def sgm_aggregate_maps_torch(cost: torch.Tensor, P1: float, p2: torch.Tensor, directions) -> torch.Tensor:
+    """The torch recurrence with given large-jump penalties ``p2`` :math:`(B, R, H, W)` (one map per direction
+    of ``directions``; differentiable in ``cost`` and ``p2``, as learned penalties are trained) -> ``S``."""
     total = None
     for i, (dx, dy) in enumerate(directions):
         path = _path_torch(cost, dx, dy, float(P1), p2[:, i])

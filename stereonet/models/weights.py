@@ -21,13 +21,14 @@ from torch import nn
 from stereonet.checks import StereoInputError
 from stereonet.io.atomic import atomic_path
 from stereonet.models.dispnet import DispNet
+from stereonet.models.penalty import PenaltyNet
 from stereonet.models.refine import RefineNet
 from stereonet.models.siamese import SiameseNet
 from stereonet.models.smd import SMDNet
 
 FORMAT = "stereonet-weights-v1"
 MODEL_CLASSES: dict[str, type[nn.Module]] = {"dispnet": DispNet, "smd": SMDNet, "siamese": SiameseNet,
-                                             "refine": RefineNet}
+                                             "refine": RefineNet, "penalty": PenaltyNet}
 WEIGHTS_DIR_ENV = "STEREONET_WEIGHTS_DIR"
 
 
@@ -49,7 +50,7 @@ def default_weights_path(model: str) -> Path:
 
 
 def build_model(model: str, config: dict) -> nn.Module:
-    """Instantiate the network called ``model`` ("dispnet", "smd", "siamese", "refine") with keyword ``config``."""
+    """Instantiate the network called ``model`` ("dispnet", "smd", "siamese", "refine", "penalty") with keyword ``config``."""
     if model not in MODEL_CLASSES:
         raise StereoInputError(f"model: unknown network {model!r}; valid names: {', '.join(MODEL_CLASSES)}")
     return MODEL_CLASSES[model](**config)
