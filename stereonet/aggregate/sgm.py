@@ -198,7 +198,7 @@ def sgm_aggregate_maps_torch(cost: torch.Tensor, P1: float, p2: torch.Tensor, di
 
 def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, image: torch.Tensor | None = None,
                   p2_alpha: float = 0.0, backend: str = "auto", *,
-                  penalty_step: float | None = None) -> torch.Tensor:
+                  penalty_step: float | None = None, p2_maps: torch.Tensor | None = None) -> torch.Tensor:
     """Semi-global aggregation of any cost volume (see module doc).
 
     Args:
@@ -210,22 +210,36 @@ def sgm_aggregate(cost: torch.Tensor, P1: float, P2: float, paths: int = 8, imag
         p2_alpha: strength of the P2 adaptation (0 = constant P2).
         backend: ``"auto"`` (numba on CPU without gradient, else torch), ``"torch"`` or ``"numba"``.
         penalty_step: round ``P1`` and every ``P2(p, r)`` to multiples of this (see module doc); None = exact.
+        p2_maps: optional :math:`(B, R, H, W)` large-jump penalties, one map per path direction (learned ones,
+            :class:`~stereonet.models.penalty.PenaltyNet`), used instead of ``P2`` and its image adaptation
+            (expected on the ``penalty_step`` grid already, each at least ``P1``).
 
     Returns:
         :math:`(B, D, H, W)` aggregated cost ``S = sum_r L_r`` (dtype of ``cost``; the numba backend
         computes in float32). The numba result is a permuted view of a ``(B, H, W, D)`` buffer.
     """
     directions = _check_sgm_args(cost, P1, P2, paths, image, p2_alpha, penalty_step=penalty_step)
+    if p2_maps is not None:
+        b, _, h, w = cost.shape
+        check_shape(p2_maps, [str(b), str(len(directions)), str(h), str(w)], "p2_maps")
     if not use_numba(cost, backend=backend, float32_only=False):  # the kernel computes in float32
+        if p2_maps is not None:
+            return sgm_aggregate_maps_torch(cost, quantize_penalty(P1, penalty_step), p2_maps.to(cost), directions)
         return sgm_aggregate_torch(cost, P1, P2, paths, image, p2_alpha, penalty_step)
     b = cost.shape[0]
     costs = (cost[i].detach().to("cpu", torch.float32).permute(1, 2, 0).contiguous().numpy() for i in range(b))
-    total = sgm_aggregate_hwd(costs, P1, P2, directions, image, p2_alpha, penalty_step)
+    total = sgm_aggregate_hwd(costs, P1, P2, directions, image, p2_alpha, penalty_step, p2_maps=p2_maps)
     return total.to(device=cost.device, dtype=cost.dtype)
 
 
+def p2_maps_array(p2_maps: torch.Tensor, i: int) -> np.ndarray:
+    """Item ``i`` of given penalty maps :math:`(B, R, H, W)` as the kernels' C-contiguous float32 (R, H, W)."""
+    return np.ascontiguousarray(p2_maps[i].detach().to("cpu", torch.float32).numpy())
+
+
 def sgm_aggregate_hwd(costs, P1: float, P2: float, directions, image: torch.Tensor | None,
-                      p2_alpha: float, penalty_step: float | None = None) -> torch.Tensor:
+                      p2_alpha: float, penalty_step: float | None = None,
+                      p2_maps: torch.Tensor | None = None) -> torch.Tensor:
     """The numba backend of :func:`sgm_aggregate` on ``(H, W, D)`` arrays (arguments already checked).
 
     Args:
@@ -234,7 +248,7 @@ def sgm_aggregate_hwd(costs, P1: float, P2: float, directions, image: torch.Tens
             with a ``penalty_step`` of ``1 / 2^k`` the 16-bit kernel); each is consumed before the next is
             taken, so a generator keeps one converted volume at a time.
         directions: from :func:`sgm_directions`; image: the guide :math:`(B, C, H, W)` or None.
-        penalty_step: see :func:`sgm_aggregate`.
+        penalty_step, p2_maps: see :func:`sgm_aggregate` (``p2_maps`` replaces ``P2`` and ``image``'s rule).
 
     Returns:
         :math:`(B, D, H, W)` float32 CPU, a permuted view of a ``(B, H, W, D)`` buffer.
@@ -246,7 +260,9 @@ def sgm_aggregate_hwd(costs, P1: float, P2: float, directions, image: torch.Tens
     outs = []
     for i, c_hwd in enumerate(costs):
         h, w = c_hwd.shape[:2]
-        if image is None:
+        if p2_maps is not None:
+            p2 = p2_maps_array(p2_maps, i)
+        elif image is None:
             p2 = p2_maps_numpy(P1, P2, directions, np.zeros((h, w), np.float32), 0.0)
         else:
             p2 = p2_maps_numpy(P1, P2, directions, grey_numpy(image[i]), p2_alpha, penalty_step)
@@ -272,14 +288,17 @@ def fixed_point_scale_for(P1: float, P2: float, directions, penalty_step: float 
 
 
 def sgm_aggregate_fixed_hwd(cost_hwd: np.ndarray, P1: float, P2: float, directions, image: torch.Tensor | None,
-                            p2_alpha: float, penalty_step: float, s: int) -> np.ndarray:
+                            p2_alpha: float, penalty_step: float, s: int, p2: np.ndarray | None = None) -> np.ndarray:
     """The 16-bit kernel of :func:`sgm_aggregate_hwd` for one uint8 ``(H, W, D)`` cost (guide ``image``
     :math:`(C, H, W)` or None) whose values and penalties :func:`fixed_point_scale_for` accepted with ``s``:
-    int16 ``(H, W, D)`` = ``s * S`` exactly."""
+    int16 ``(H, W, D)`` = ``s * S`` exactly. ``p2``: given float32 (R, H, W) penalty maps on the grid, at most
+    ``P2`` (:func:`p2_maps_array`), instead of the image rule."""
     from stereonet.kernels.sgm import p2_maps_fixed, sgm_fixed_hwd
 
     dirs = np.asarray(directions, dtype=np.int64)
     P1, P2 = quantize_penalty(P1, penalty_step), quantize_penalty(P2, penalty_step)
+    if p2 is not None:
+        return sgm_fixed_hwd(cost_hwd, np.float32(P1), p2, dirs, s)
     h, w = cost_hwd.shape[:2]
     alpha = 0.0 if image is None else p2_alpha
     grey = np.zeros((h, w), np.float32) if image is None else grey_numpy(image)

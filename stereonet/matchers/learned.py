@@ -1,5 +1,5 @@
 """Learned matchers in the registry: ``siamese``, ``siamese-sgm``, ``siamese-census-sgm``, ``dispnet``, ``smd``,
-``sgm-refine``.
+``sgm-refine``, ``sgm-penalties``.
 
 Each loads its network from ``stereonet/weights/<name>.pt`` (or ``.ckpt``) the first time it runs (cached per file);
 ``checkpoint=PATH`` overrides. Missing files, checkpoints of another model and tensors of the wrong shape
@@ -46,7 +46,7 @@ def _cached(path: str, mtime: float, expected: str):
 
 
 NETWORK_OF = {"dispnet": "dispnet", "smd": "smd", "siamese": "siamese", "siamese-sgm": "siamese",
-              "siamese-census-sgm": "siamese", "sgm-refine": "refine"}
+              "siamese-census-sgm": "siamese", "sgm-refine": "refine", "sgm-penalties": "penalty"}
 
 
 def weights_available(name: str) -> bool:
@@ -348,3 +348,33 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
                                    max_disp)
     return StereoOutput(disp.to(left.dtype), torch.ones_like(valid[:, :1]), confidence=confidence[:, :1],
                         extras={"base": base[:, :1]})
+
+
+@register("sgm-penalties", kind="learned", needs_weights=True,
+          description="sgm with learned large-jump penalties per pixel and path (SGM-Net style, weights/penalty.pt)")
+def sgm_penalties_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
+                          backend: str = "torch", **options) -> StereoOutput:
+    """``sgm`` (its census cost, ``P1``, selection, filters and confidence; options as for ``sgm``) with the large-jump
+    penalty of every pixel and path direction set by :class:`~stereonet.models.penalty.PenaltyNet` from the left
+    image: ``sgm``'s edge-adapted rule (its ``P2`` and ``p2_alpha``) times the network's factor, within
+    ``[P1, p2_max]``. ``backend``: "torch" only (the network is a few convolutions; the aggregation is ``sgm``'s)."""
+    from stereonet.aggregate.sgm import CENSUS_PENALTY_STEP, check_sgm_options, p2_maps
+    from stereonet.matchers.local import SGM_DEFAULTS, sgm
+
+    if backend != "torch":
+        raise StereoInputError(f"backend: sgm-penalties runs on 'torch' only, got {backend!r}")
+    for key in ("p2_maps", "cost", "block_size"):
+        if key in options:
+            raise StereoInputError(f"{key}: sgm-penalties sets its own (the learned maps on sgm's pixelwise census)")
+    net = load_network("penalty", checkpoint)
+    opts = {**SGM_DEFAULTS, **options}
+    P1, P2, p2_alpha, paths = opts["P1"], opts["P2"], opts["p2_alpha"], opts["paths"]
+    directions = check_sgm_options(P1, P2, paths, p2_alpha, CENSUS_PENALTY_STEP)
+    if len(directions) != net.paths:
+        raise StereoInputError(f"paths: the penalty network was trained for {net.paths} paths, got {paths}")
+    b, _, h, w = left.shape
+    dtype = next(net.parameters()).dtype
+    with torch.no_grad():
+        rule = p2_maps(P1, P2, directions, left, (b, h, w), p2_alpha, torch.float32, left.device, CENSUS_PENALTY_STEP)
+        maps = net.to(left.device).penalties(left.to(dtype), rule, P1)
+    return sgm(left, right, max_disp, p2_maps=maps, **options)

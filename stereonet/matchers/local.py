@@ -35,9 +35,12 @@ from stereonet.aggregate.sgm import (
     CENSUS_PENALTY_STEP,
     check_sgm_options,
     fixed_point_scale_for,
+    p2_maps_array,
+    quantize_penalty,
     sgm_aggregate,
     sgm_aggregate_fixed_hwd,
     sgm_aggregate_hwd,
+    sgm_directions,
 )
 from stereonet.checks import StereoInputError, check_window
 from stereonet.cost import build_cost_volume
@@ -223,6 +226,19 @@ def _mixed_u8_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: to
     return out
 
 
+def _given_p2_maps(maps, left: torch.Tensor, P1: float, P2: float, paths: int,
+                   step: float | None) -> tuple[torch.Tensor, float]:
+    """Checked ``p2_maps`` on the penalty grid, and the largest penalty (``P2`` or above) for the 16-bit check."""
+    b, _, h, w = left.shape
+    if not isinstance(maps, torch.Tensor) or tuple(maps.shape) != (b, len(sgm_directions(paths)), h, w):
+        shape = tuple(maps.shape) if isinstance(maps, torch.Tensor) else type(maps).__name__
+        raise StereoInputError(f"p2_maps: expected a tensor (B, paths, H, W) = ({b}, {paths}, {h}, {w}), got {shape}")
+    maps = quantize_penalty(maps.detach().to(left.device, torch.float32), step)
+    if not bool(torch.isfinite(maps).all()) or bool((maps < P1).any()):
+        raise StereoInputError(f"p2_maps: expected finite penalties >= P1 ({P1})")
+    return maps, max(float(P2), float(maps.max()))
+
+
 @register("sgm", kind="classical",
           description="Semi-global matching: census 7x7, 8 paths, edge-adapted P2, parabola, LR, median, speckle")
 def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> StereoOutput:
@@ -245,7 +261,9 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     w_extra * V``; siamese-census-sgm on census). With census the mix is rounded to ``mix_step`` bits
     (:data:`MIX_STEP`, a power of two; None = unrounded, float32 kernel) in every backend, which lets the CPU
     run the same 16-bit path on it (uint8 in units of ``mix_step``; a mix outside 0..255 units falls back to
-    the float32 kernel, same numbers); other costs are mixed unrounded.
+    the float32 kernel, same numbers); other costs are mixed unrounded. ``p2_maps`` (B, paths, H, W): large-jump
+    penalties per pixel and path direction instead of ``P2`` and its image rule (``sgm-penalties``' learned maps;
+    rounded to the penalty grid, each at least ``P1``).
     """
     opts = from_opencv_names({**SGM_DEFAULTS, **options})
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
@@ -257,6 +275,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     # the registry validated left/right: no second check of the images
     extra = cost_opts.pop("extra_cost", None)
     mix_step = cost_opts.pop("mix_step", MIX_STEP)
+    maps = cost_opts.pop("p2_maps", None)
     from stereonet.kernels.sgm import grid_scale  # (numba loads with the first kernel, not with the package)
 
     if mix_step is not None and (not isinstance(mix_step, (int, float)) or isinstance(mix_step, bool)
@@ -269,6 +288,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     # 16-bit fixed point (the same result in every backend; aggregate.sgm module doc). A mixed-in cost is in
     # the same units and gets the same penalties (float32 kernel), so its weight 0 is plain sgm.
     step = CENSUS_PENALTY_STEP if cost_name == "census" else None
+    if maps is not None:  # given large-jump penalties (sgm-penalties' learned maps) instead of P2's image rule
+        maps, P2 = _given_p2_maps(maps, left, P1, P2, paths, step)
     if (cost_name == "census" and window == 1 and set(cost_opts) <= {"census_window", "backend"}
             and isinstance(census_window, int) and 3 <= census_window <= CENSUS_U8_MAX_WINDOW
             and use_numba(left, right, backend=cost_opts.get("backend", "auto"))):
@@ -288,7 +309,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
                 sq = fixed_point_scale_for(P1 * q, P2 * q, directions, step * q, 255)
                 if sq is not None:
                     del vols
-                    accs = [sgm_aggregate_fixed_hwd(v, P1 * q, P2 * q, directions, left[i], p2_alpha, step * q, sq)
+                    accs = [sgm_aggregate_fixed_hwd(v, P1 * q, P2 * q, directions, left[i], p2_alpha, step * q, sq,
+                                                    None if maps is None else p2_maps_array(maps * q, i))
                             for i, v in enumerate(mixed)]
                     del mixed
                     selection, confidence = select_disparity_confidence_fixed(
@@ -300,7 +322,8 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
                     return out
         if s is not None:
             # 16-bit fixed point: select straight from the int16 aggregate (no float32 volume)
-            accs = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step, s)
+            accs = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step, s,
+                                            None if maps is None else p2_maps_array(maps, i))
                     for i, v in enumerate(vols)]
             del vols
             selection, confidence = select_disparity_confidence_fixed(
@@ -311,7 +334,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
             return out
         if extra is not None:
             vols = _mixed_hwd(vols, *extra, mix_step)
-        agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step).to(left.device)
+        agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step, p2_maps=maps).to(left.device)
         del vols
     else:
         vol = build_cost_volume(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
@@ -320,7 +343,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
             vol = w_own * vol + w_extra * other.to(vol)
             if mix_step is not None:  # on the mix_step grid, as the CPU's 16-bit path
                 vol = torch.round(vol * (1.0 / mix_step)) * mix_step
-        agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, penalty_step=step)
+        agg = sgm_aggregate(vol, P1, P2, paths=paths, image=left, p2_alpha=p2_alpha, penalty_step=step, p2_maps=maps)
         del vol
     # selection and the cost margin of the aggregated cost in one pass over it (select_and_filter +
     # cost_margin_confidence, the same numbers); confidence 0 where LR / uniqueness / speckles rejected
