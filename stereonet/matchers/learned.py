@@ -357,7 +357,9 @@ def sgm_penalties_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int
     """``sgm`` (its census cost, ``P1``, selection, filters and confidence; options as for ``sgm``) with the large-jump
     penalty of every pixel and path direction set by :class:`~stereonet.models.penalty.PenaltyNet` from the left
     image: ``sgm``'s edge-adapted rule (its ``P2`` and ``p2_alpha``) times the network's factor, within
-    ``[P1, p2_max]``. ``backend``: "torch" only (the network is a few convolutions; the aggregation is ``sgm``'s)."""
+    ``[P1, p2_max]``; a file with ``inputs="image+disparity"`` also reads a first ``sgm`` pass (filled, with its
+    validity), so ``sgm`` runs twice. ``backend``: "torch" only (the network is a few convolutions; the
+    aggregation is ``sgm``'s)."""
     from stereonet.aggregate.sgm import CENSUS_PENALTY_STEP, check_sgm_options, p2_maps
     from stereonet.matchers.local import SGM_DEFAULTS, sgm
 
@@ -374,7 +376,11 @@ def sgm_penalties_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int
         raise StereoInputError(f"paths: the penalty network was trained for {net.paths} paths, got {paths}")
     b, _, h, w = left.shape
     dtype = next(net.parameters()).dtype
+    first = valid = None
+    if net.inputs == "image+disparity":  # the network reads a first pass of sgm with the same options
+        first, valid, _ = sgm_base(left, right, max_disp, **options)
+        first = first.to(dtype)
     with torch.no_grad():
         rule = p2_maps(P1, P2, directions, left, (b, h, w), p2_alpha, torch.float32, left.device, CENSUS_PENALTY_STEP)
-        maps = net.to(left.device).penalties(left.to(dtype), rule, P1)
+        maps = net.to(left.device).penalties(left.to(dtype), rule, P1, first, valid)
     return sgm(left, right, max_disp, p2_maps=maps, **options)

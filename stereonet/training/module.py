@@ -424,11 +424,12 @@ class PenaltyModule(StereoModule):
     1 px of the truth must undercut every disparity >= 2 px away) on the non-occluded pixels. The cost is fixed,
     so the network can only trade smoothness against the data term. Validation predicts by winner-takes-all on
     the same aggregate (``val/epe``, ``val/bad2``) and logs ``val/base_bad2``, the same with the fixed rule (the
-    untrained network), so the curve shows the gain over ``sgm``'s penalties. About 2 s per batch of 4 at
-    96x192 on 2 threads.
+    untrained network), so the curve shows the gain over ``sgm``'s penalties. About 0.5-1 s per batch of 4 at
+    96x192 on 2 threads. With ``inputs="image+disparity"`` each pair first runs ``sgm`` (its CPU kernels, no
+    gradient, the pair's own range) as the ``sgm-penalties`` matcher does at inference.
 
     Args:
-        channels, dilations: the network's (see PenaltyNet; paths are ``sgm``'s).
+        channels, dilations, inputs: the network's (see PenaltyNet; paths are ``sgm``'s).
         p2_max: the largest penalty (bits); at most 144 keeps ``sgm``'s 16-bit kernel exact for 7x7 census.
         margin: the hinge margin in bits of the aggregated cost.
         max_disp: disparity range for pairs that carry none (data_gen pairs carry their own).
@@ -438,7 +439,7 @@ class PenaltyModule(StereoModule):
 
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 1), p2_max: float = 144.0,
                  margin: float = 16.0, max_disp: int = 64, lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000) -> None:
+                 schedule_steps: int = 5000, inputs: str = "image") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         # matchers sit above models; only training reaches up
         from stereonet.matchers.local import SGM_DEFAULTS
@@ -449,11 +450,11 @@ class PenaltyModule(StereoModule):
             raise ValueError(f"p2_max: expected >= sgm's P2 ({SGM_DEFAULTS['P2']}), got {p2_max!r}")
         self.save_hyperparameters()
         self.model = PenaltyNet(channels=channels, dilations=tuple(dilations), paths=SGM_DEFAULTS["paths"],
-                                p2_max=p2_max)
+                                p2_max=p2_max, inputs=inputs)
 
     def model_config(self) -> dict:
         return {"channels": self.hparams.channels, "dilations": list(self.hparams.dilations),
-                "paths": self.model.paths, "p2_max": float(self.hparams.p2_max)}
+                "paths": self.model.paths, "p2_max": float(self.hparams.p2_max), "inputs": self.model.inputs}
 
     def compute(self, batch: dict):
         from stereonet.aggregate.sgm import (
@@ -478,7 +479,15 @@ class PenaltyModule(StereoModule):
                                        census_window=SGM_DEFAULTS["census_window"]).contiguous()
             rule = p2_maps(P1, P2, directions, left, (b, h, w), alpha, census.dtype, census.device,
                            CENSUS_PENALTY_STEP)
-        maps = self.model.penalties(left, rule, P1)
+        first = valid_first = None
+        if self.model.inputs == "image+disparity":  # a first sgm pass per pair, with its own range, as inference
+            from stereonet.matchers.learned import sgm_base
+
+            ranges = [max(1, min(int(r), w - 1)) for r in own] if own else [max_disp] * b
+            with torch.no_grad():
+                parts = [sgm_base(left[i:i + 1], right[i:i + 1], ranges[i])[:2] for i in range(b)]
+            first, valid_first = (torch.cat(t) for t in zip(*parts))
+        maps = self.model.penalties(left, rule, P1, first, valid_first)
         agg = sgm_aggregate_maps_torch(census, P1, maps, directions)
         valid = batch.get("nonoccluded", batch["valid"])
         loss = aggregated_cost_hinge(agg, batch["disparity"], valid, hp.margin)

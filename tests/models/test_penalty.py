@@ -133,4 +133,39 @@ def test_penalty_module_step_trains_the_network():
     with torch.no_grad():
         _, pred, extra = module.compute(batch)
     assert pred.shape == disp.shape and "base_bad2" in extra
-    assert module.model_config() == {"channels": 4, "dilations": [1], "paths": 8, "p2_max": 144.0}
+    assert module.model_config() == {"channels": 4, "dilations": [1], "paths": 8, "p2_max": 144.0, "inputs": "image"}
+
+
+def test_disparity_jumps_and_a_network_that_reads_a_first_pass(tmp_path):
+    from stereonet.models.penalty import JUMP_CLIP, disparity_jumps
+
+    disp = torch.zeros(1, 1, 5, 6)
+    disp[..., 3:] = 20.0  # a vertical depth edge between x = 2 and x = 3
+    jumps = disparity_jumps(disp, sgm_directions(8))
+    assert jumps.shape == (1, 8, 5, 6)
+    assert float(jumps[0, 0, :, 3].min()) == JUMP_CLIP and float(jumps[0, 0, :, 4].max()) == 0.0  # (1, 0): from x-1
+    assert float(jumps[0, 1, :, 2].min()) == JUMP_CLIP and float(jumps[0, 1, :, 3].max()) == 0.0  # (-1, 0): from x+1
+    assert float(jumps[0, 2].max()) == 0.0  # (0, 1): from y-1, no edge across rows
+    net = PenaltyNet(channels=4, dilations=(1,), inputs="image+disparity")
+    with pytest.raises(StereoInputError, match="disparity"):
+        net(torch.rand(1, 3, 5, 6))
+    with pytest.raises(StereoInputError, match="inputs"):
+        PenaltyNet(inputs="census")
+    path = tmp_path / "penalty.pt"
+    config = {"channels": 4, "dilations": [1], "paths": 8, "p2_max": 144.0, "inputs": "image+disparity"}
+    save_weights(path, "penalty", config, net)
+    left, right = _pair(32, 64, 4, seed=6)
+    out = match("sgm-penalties", left, right, 16, checkpoint=str(path))
+    plain = match("sgm", left, right, 16)
+    assert torch.equal(out.disparity, plain.disparity)  # untrained: exactly sgm, after a first pass
+    torch.nn.init.normal_(net.head.weight, std=1.0)
+    save_weights(path, "penalty", config, net)
+    assert not torch.equal(match("sgm-penalties", left, right, 16, checkpoint=str(path)).disparity, plain.disparity)
+    from stereonet.training.module import PenaltyModule
+
+    module = PenaltyModule(channels=4, dilations=(1,), max_disp=8, inputs="image+disparity")
+    d = torch.full((1, 1, 32, 64), 4.0)
+    batch = {"left": left, "right": right, "disparity": d, "valid": torch.ones_like(d, dtype=torch.bool)}
+    loss, _, _ = module.compute(batch)
+    loss.backward()
+    assert float(module.model.head.weight.grad.abs().sum()) > 0
