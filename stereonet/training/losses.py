@@ -110,18 +110,20 @@ def disparity_errors(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tens
 
 
 def aggregated_cost_hinge(cost: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, margin: float,
-                          near: float = 1.0, far: float = 2.0) -> torch.Tensor:
+                          near: float = 1.0, far: float = 2.0, cap: float | None = None) -> torch.Tensor:
     """Hinge on a (for instance SGM-aggregated) cost volume: the winner-takes-all choice should fall near the
     ground truth.
 
     Per valid pixel, ``relu(margin + min_{|d - gt| < near} C(d) - min_{|d - gt| >= far} C(d)) / margin``: the best
     cost among the disparities within ``near`` px of the truth must undercut every disparity at least ``far`` px
     away by ``margin`` (cost units). Disparities in between are neither; pixels whose truth lies outside the
-    volume's range are left out. ``cost`` :math:`(B, D, H, W)`, lower = better; ``target``, ``valid``
+    volume's range are left out. ``cap``: each pixel's term is at most this (a ramp: a pixel that is wrong by
+    more than ``(cap - 1) * margin`` counts as one error and pulls no further; None = the plain hinge). ``cost`` :math:`(B, D, H, W)`, lower = better; ``target``, ``valid``
     :math:`(B, 1, H, W)`. Returns the mean over the used pixels (0 when there are none).
     """
-    if not margin > 0 or not 0 < near <= far:
-        raise ValueError(f"margin, near, far: expected margin > 0 and 0 < near <= far, got {margin}, {near}, {far}")
+    if not margin > 0 or not 0 < near <= far or not (cap is None or cap > 0):
+        raise ValueError(f"margin, near, far, cap: expected margin > 0, 0 < near <= far and cap > 0 or None, got "
+                         f"{margin}, {near}, {far}, {cap}")
     d = torch.arange(cost.shape[1], device=cost.device, dtype=cost.dtype).view(1, -1, 1, 1)
     dist = (d - target).abs()  # BxDxHxW
     inf = torch.tensor(float("inf"), device=cost.device, dtype=cost.dtype)
@@ -130,4 +132,5 @@ def aggregated_cost_hinge(cost: torch.Tensor, target: torch.Tensor, valid: torch
     used = valid & torch.isfinite(good) & torch.isfinite(bad) & (target <= cost.shape[1] - 1)
     if not bool(used.any()):
         return cost.new_zeros(()) * cost.sum()  # keeps the graph
-    return (torch.relu(margin + good - bad)[used] / margin).mean()
+    terms = torch.relu(margin + good - bad)[used] / margin
+    return (terms if cap is None else terms.clamp(max=cap)).mean()

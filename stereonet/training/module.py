@@ -432,6 +432,10 @@ class PenaltyModule(StereoModule):
         channels, dilations, inputs: the network's (see PenaltyNet; paths are ``sgm``'s).
         p2_max: the largest penalty (bits); at most 144 keeps ``sgm``'s 16-bit kernel exact for 7x7 census.
         margin: the hinge margin in bits of the aggregated cost.
+        loss_cap: each pixel's hinge term at most this (None: the plain hinge). The first run (plain hinge) lowered
+            every penalty as the renders got harder while the validation WTA got worse: a plain hinge lets the
+            pixels that are wrong by far dominate, and lowering all penalties shrinks their violations; capped,
+            such a pixel counts as one error (docs/experiments/sgm_penalties.txt).
         max_disp: disparity range for pairs that carry none (data_gen pairs carry their own).
     """
 
@@ -439,7 +443,7 @@ class PenaltyModule(StereoModule):
 
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 1), p2_max: float = 144.0,
                  margin: float = 16.0, max_disp: int = 64, lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000, inputs: str = "image") -> None:
+                 schedule_steps: int = 5000, inputs: str = "image", loss_cap: float | None = None) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         # matchers sit above models; only training reaches up
         from stereonet.matchers.local import SGM_DEFAULTS
@@ -490,7 +494,7 @@ class PenaltyModule(StereoModule):
         maps = self.model.penalties(left, rule, P1, first, valid_first)
         agg = sgm_aggregate_maps_torch(census, P1, maps, directions)
         valid = batch.get("nonoccluded", batch["valid"])
-        loss = aggregated_cost_hinge(agg, batch["disparity"], valid, hp.margin)
+        loss = aggregated_cost_hinge(agg, batch["disparity"], valid, hp.margin, cap=hp.get("loss_cap"))
         extra = {"p2_mean": maps.detach().mean()}
         if self.training:
             return loss, None, extra

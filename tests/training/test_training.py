@@ -242,6 +242,11 @@ def test_aggregated_cost_hinge_scores_the_winner_against_far_disparities():
     valid = torch.ones(1, 1, 1, 3, dtype=torch.bool)
     # pixel 0: relu(4 + 1 - 9) = 0; pixel 1: relu(4 + 5 - 4) / 4 = 1.25; pixel 2 unused
     assert aggregated_cost_hinge(cost, target, valid, margin=4.0).item() == pytest.approx(1.25 / 2)
+    # capped (a ramp): pixel 1's 1.25 counts as at most 1.0
+    assert aggregated_cost_hinge(cost, target, valid, margin=4.0, cap=1.0).item() == pytest.approx(1.0 / 2)
+    assert aggregated_cost_hinge(cost, target, valid, margin=4.0, cap=2.0).item() == pytest.approx(1.25 / 2)
+    with pytest.raises(ValueError, match="cap"):
+        aggregated_cost_hinge(cost, target, valid, margin=4.0, cap=0.0)
     valid[0, 0, 0, 1] = False
     assert aggregated_cost_hinge(cost, target, valid, margin=4.0).item() == 0.0
     # 2.0 px from the truth (bin 5 for truth 3.0) counts as far: it must lose by the margin too
