@@ -436,7 +436,8 @@ class PenaltyModule(StereoModule):
             every penalty as the renders got harder while the validation WTA got worse: a plain hinge lets the
             pixels that are wrong by far dominate, and lowering all penalties shrinks their violations; capped,
             such a pixel counts as one error (docs/experiments/sgm_penalties.txt).
-        max_disp: disparity range for pairs that carry none (data_gen pairs carry their own).
+        max_disp: disparity range for pairs that carry none (data_gen pairs carry their own; a batch's cost volume
+            spans the largest range of its pairs, the first sgm pass each pair's own, as at inference).
     """
 
     model_name = "penalty"
