@@ -351,7 +351,7 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
 
 
 @register("sgm-penalties", kind="learned", needs_weights=True,
-          description="sgm with learned large-jump penalties per pixel and path (SGM-Net style, weights/penalty.pt)")
+          description="sgm with learned large-jump penalties per pixel and path (SGM-Net style; no weights shipped: checkpoint=)")
 def sgm_penalties_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                           backend: str = "torch", **options) -> StereoOutput:
     """``sgm`` (its census cost, ``P1``, selection, filters and confidence; options as for ``sgm``) with the large-jump
