@@ -69,6 +69,14 @@ def sgm_directions(paths: int) -> tuple[tuple[int, int], ...]:
     raise StereoInputError(f"paths: expected 4, 8 or 16, got {paths!r}")
 
 
+def predecessor_slices(dx: int, dy: int, h: int, w: int) -> tuple[slice, slice, slice, slice]:
+    """``(ys, xs, yp, xp)``: the rows/columns of the pixels of an ``h x w`` image that have a predecessor along the
+    walk direction ``(dx, dy)`` (``[ys, xs]``), and those predecessors, ``(y - dy, x - dx)`` (``[yp, xp]``)."""
+    ys, yp = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h - max(dy, 0))
+    xs, xp = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w - max(dx, 0))
+    return ys, xs, yp, xp
+
+
 def p2_maps(P1: float, P2: float, directions, image: torch.Tensor | None, shape: tuple[int, int, int],
             p2_alpha: float, dtype: torch.dtype, device: torch.device,
             penalty_step: float | None = None) -> torch.Tensor:
@@ -83,9 +91,7 @@ def p2_maps(P1: float, P2: float, directions, image: torch.Tensor | None, shape:
         return out
     grey = to_grey(image).to(dtype)[:, 0]  # BxHxW
     for i, (dx, dy) in enumerate(directions):
-        # predecessor of (y, x) is (y - dy, x - dx)
-        ys, yp = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h - max(dy, 0))
-        xs, xp = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w - max(dx, 0))
+        ys, xs, yp, xp = predecessor_slices(dx, dy, h, w)
         grad = (grey[:, ys, xs] - grey[:, yp, xp]).abs()
         out[:, i, ys, xs] = quantize_penalty(torch.clamp(float(P2) / (1.0 + p2_alpha * grad), min=float(P1)),
                                              penalty_step)
@@ -101,8 +107,7 @@ def p2_maps_numpy(P1: float, P2: float, directions, grey: np.ndarray, p2_alpha: 
     if p2_alpha == 0:
         return out
     for i, (dx, dy) in enumerate(directions):
-        ys, yp = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h - max(dy, 0))
-        xs, xp = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w - max(dx, 0))
+        ys, xs, yp, xp = predecessor_slices(dx, dy, h, w)
         grad = np.abs(grey[ys, xs] - grey[yp, xp])
         out[i, ys, xs] = quantize_penalty(
             np.maximum(np.float32(P2) / (np.float32(1.0) + np.float32(p2_alpha) * grad), np.float32(P1)), penalty_step)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from stereonet.aggregate.sgm import sgm_directions
+from stereonet.aggregate.sgm import predecessor_slices, sgm_directions
 from stereonet.checks import StereoInputError
 from stereonet.models.layers import standardize_image
 
@@ -102,7 +102,6 @@ def disparity_jumps(disparity: torch.Tensor, directions) -> torch.Tensor:
     out = disparity.new_zeros((b, len(directions), h, w))
     d = disparity[:, 0]
     for i, (dx, dy) in enumerate(directions):
-        ys, yp = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h - max(dy, 0))
-        xs, xp = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w - max(dx, 0))
+        ys, xs, yp, xp = predecessor_slices(dx, dy, h, w)
         out[:, i, ys, xs] = (d[:, ys, xs] - d[:, yp, xp]).abs().clamp(max=JUMP_CLIP)
     return out
