@@ -10,7 +10,8 @@ adaptive mix), ``val2k``/``val4k`` on seeds 5172/5173 (the twenty-third session'
 seed 5174, difficulty 2, ``shared_material=0.5``: the twenty-fifth session's same-look depth edges) and ``shm32b`` (the same on seed
 5175: its fused-weight probe), ``shm32-plain`` (shm32's pairs without the shared looks: the same geometry, for a
 paired comparison), ``val2l``/``val4l`` on seeds 5176/5177 (the twenty-sixth session's census-input tower), ``val2m``/``val4m`` on seeds
-5178/5179 (the twenty-seventh session's learned penalties); any other spec as
+5178/5179 (the twenty-seventh session's learned penalties), ``val2n``/``val4n`` on seeds 5180/5181 (the
+twenty-eighth session's graphcut label pruning); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -26,7 +27,8 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2j": (12, 5168, 2), "val4j": (8, 5169, 4),
         "val2k": (12, 5172, 2), "val4k": (8, 5173, 4), "shm32": (32, 5174, 2, {"shared_material": 0.5}),
         "shm32b": (32, 5175, 2, {"shared_material": 0.5}), "shm32-plain": (32, 5174, 2),
-        "val2l": (12, 5176, 2), "val4l": (8, 5177, 4), "val2m": (12, 5178, 2), "val4m": (8, 5179, 4)}
+        "val2l": (12, 5176, 2), "val4l": (8, 5177, 4), "val2m": (12, 5178, 2), "val4m": (8, 5179, 4),
+        "val2n": (12, 5180, 2), "val4n": (8, 5181, 4)}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

@@ -72,10 +72,70 @@ def _expansion_move(cost: np.ndarray, labels: np.ndarray, alpha: int, s_right: n
     return np.where(take_alpha, alpha, labels)
 
 
+class _RestrictedMoves:
+    """The α-expansion moves of one item restricted to candidate pixels (see :func:`alpha_expansion`'s
+    ``candidates``): per label, the pixels that list it (a bucket sort of the candidates, once); per move, the
+    graph of the pixels within ``radius`` of them (:func:`stereonet.kernels.graphcut.restricted_expansion_graph`)."""
+
+    def __init__(self, candidates: np.ndarray, n_labels: int, radius: int):
+        k, h, w = candidates.shape
+        flat = candidates.reshape(k, h * w)
+        pixel = np.broadcast_to(np.arange(h * w), (k, h * w))
+        order = np.argsort(flat, axis=None, kind="stable")
+        self.pixels = pixel.reshape(-1)[order]
+        self.starts = np.searchsorted(flat.reshape(-1)[order], np.arange(n_labels + 1))
+        self.radius = radius
+        self.stamp = np.zeros((h, w), np.int64)
+        self.index = np.empty((h, w), np.int64)
+        self.nodes = np.empty(h * w, np.int64)
+        self.source, self.sink = np.empty(h * w), np.empty(h * w)
+        self.edge_i, self.edge_j = np.empty(2 * h * w, np.int64), np.empty(2 * h * w, np.int64)
+        self.edge_cap = np.empty(2 * h * w)
+        self.moves = 0
+
+    def move(self, cost: np.ndarray, labels: np.ndarray, alpha: int, s_right: np.ndarray, s_down: np.ndarray,
+             truncation: float, tolerance: float) -> float:
+        """Apply the optimal restricted move to ``labels`` in place; returns its energy change (<= 0: keeping
+        every label is one of the cuts). A move that does not lower the energy by more than ``tolerance`` (float
+        rounding) is not applied and returns 0."""
+        from stereonet.kernels.graphcut import restricted_expansion_graph
+
+        seeds = self.pixels[self.starts[alpha]:self.starts[alpha + 1]]
+        if seeds.size == 0:
+            return 0.0
+        self.moves += 1
+        n, m = restricted_expansion_graph(cost, labels, int(alpha), s_right, s_down, float(truncation), seeds,
+                                          self.radius, self.stamp, self.moves, self.index, self.nodes, self.source,
+                                          self.sink, self.edge_i, self.edge_j, self.edge_cap)
+        if n == 0:
+            return 0.0
+        graph = maxflow.GraphFloat(n, m)
+        ids = graph.add_nodes(n)  # 0..n-1
+        graph.add_edges(self.edge_i[:m], self.edge_j[:m], self.edge_cap[:m], np.zeros(m))
+        graph.add_grid_tedges(ids, self.source[:n], self.sink[:n])
+        # the cut where every free pixel keeps its label pays the sum of their sink capacities
+        change = graph.maxflow() - float(self.sink[:n].sum())
+        if change >= -tolerance:
+            return 0.0
+        take = graph.get_grid_segments(ids)
+        labels.reshape(-1)[self.nodes[:n][take]] = alpha
+        return change
+
+
 def alpha_expansion(cost: torch.Tensor, smoothness: float, truncation: float = 2.0, cycles: int = 2,
                     init: torch.Tensor | None = None, weights_right: torch.Tensor | None = None,
-                    weights_down: torch.Tensor | None = None) -> GraphCutResult:
+                    weights_down: torch.Tensor | None = None, candidates: torch.Tensor | None = None,
+                    candidate_radius: int = 2) -> GraphCutResult:
     """α-expansion over all labels ``0..D-1``, ``cycles`` times (stops early when a cycle changes nothing).
+
+    With ``candidates`` (label pruning) the move for ``α`` frees only the pixels within ``candidate_radius``
+    (Chebyshev distance) of a pixel that lists ``α`` among its candidate labels; every other pixel keeps its
+    label, and a label no pixel lists is not expanded. Each such move is still the optimal one over the pixels it
+    frees (a min cut on their graph, the edges to fixed pixels folded into the terminals), so the energy still
+    never increases; it is no longer the optimal expansion move over the whole image, so the result can differ
+    from the unrestricted one (either way: the moves see a different sequence of labellings). The graphs shrink
+    from ``H·W`` nodes to about ``K·(2r + 1)²/D`` of that, which is what makes the method usable on large pairs and
+    ranges (``graphcut`` takes the top labels of an SGM aggregation of the same energy as candidates).
 
     Args:
         cost: :math:`(B, D, H, W)` finite data costs, lower = better.
@@ -84,6 +144,9 @@ def alpha_expansion(cost: torch.Tensor, smoothness: float, truncation: float = 2
         cycles: passes over all labels (>= 1).
         init: optional :math:`(B, 1, H, W)` integer-valued start labels (default: winner-takes-all).
         weights_right, weights_down: optional :math:`(B, 1, H, W)` edge weights (see ``_global_mrf``).
+        candidates: optional :math:`(B, K, H, W)` integer candidate labels in ``[0, D-1]`` per pixel (see above);
+            None = every move over the whole image (exact expansion moves).
+        candidate_radius: ``r >= 0``, the spatial reach of a candidate.
     Returns:
         :class:`GraphCutResult`. Not differentiable; inputs are detached.
     """
@@ -101,6 +164,15 @@ def alpha_expansion(cost: torch.Tensor, smoothness: float, truncation: float = 2
         check_shape(init, [str(b), "1", str(h), str(w)], "init")
         if bool((init < 0).any()) or bool((init > n - 1).any()) or bool((init != init.round()).any()):
             raise StereoInputError(f"init: expected integer labels in [0, {n - 1}]")
+    if candidates is not None:
+        if not isinstance(candidates, torch.Tensor) or candidates.dim() != 4 or candidates.shape[0] != b \
+                or tuple(candidates.shape[2:]) != (h, w) or candidates.shape[1] < 1:
+            raise StereoInputError(f"candidates: expected a ({b}, K, {h}, {w}) tensor of labels, K >= 1, got "
+                                   f"{tuple(candidates.shape) if isinstance(candidates, torch.Tensor) else candidates!r}")
+        if candidates.is_floating_point() or bool((candidates < 0).any()) or bool((candidates > n - 1).any()):
+            raise StereoInputError(f"candidates: expected integer labels in [0, {n - 1}]")
+    if isinstance(candidate_radius, bool) or not isinstance(candidate_radius, int) or candidate_radius < 0:
+        raise StereoInputError(f"candidate_radius: expected an integer >= 0, got {candidate_radius!r}")
     truncation_eff = min(truncation, float(n))
     cost_np = cost.detach().double().cpu().numpy()
     ones = np.ones((b, h, w))
@@ -111,9 +183,17 @@ def alpha_expansion(cost: torch.Tensor, smoothness: float, truncation: float = 2
         labels = init[i, 0].detach().round().long().cpu().numpy()
         energy = _energy(cost_np[i], labels, s_right[i], s_down[i], truncation_eff)
         trace = [energy]
+        restricted = None if candidates is None else _RestrictedMoves(
+            candidates[i].detach().long().cpu().numpy(), n, candidate_radius)
         for _ in range(cycles):
             changed = False
             for alpha in range(n):
+                if restricted is not None:
+                    change = restricted.move(cost_np[i], labels, alpha, s_right[i], s_down[i], truncation_eff,
+                                             1e-9 * max(1.0, abs(energy)))
+                    energy, changed = energy + change, changed or change < 0.0
+                    trace.append(energy)
+                    continue
                 proposal = _expansion_move(cost_np[i], labels, alpha, s_right[i], s_down[i], truncation_eff)
                 new_energy = _energy(cost_np[i], proposal, s_right[i], s_down[i], truncation_eff)
                 if new_energy < energy - 1e-9 * max(1.0, abs(energy)):
