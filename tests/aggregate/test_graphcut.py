@@ -139,3 +139,93 @@ def test_expansion_kernel_builds_the_same_graph_as_the_numpy_construction(h, w):
         expansion_terms(cost, labels, alpha, s_right, s_down, 2.0, *out)
         for got, want in zip(out, _expansion_terms_numpy(cost, labels, alpha, s_right, s_down, 2.0)):
             assert np.array_equal(got, want)
+
+
+def _random_problem(seed, n=6, h=7, w=9):
+    g = torch.Generator().manual_seed(seed)
+    cost = torch.rand(1, n, h, w, generator=g, dtype=torch.float64) * 3
+    wr = torch.rand(1, 1, h, w, generator=g, dtype=torch.float64)
+    wd = torch.rand(1, 1, h, w, generator=g, dtype=torch.float64)
+    return cost, wr, wd
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_pruned_moves_with_every_label_a_candidate_match_the_unpruned_method(seed):
+    """Every label a candidate of every pixel: each restricted move frees every pixel not already labelled α, the same
+    optimal move as the grid graph's, so the same labels (random float costs: no ties) and the same energy trace."""
+    cost, wr, wd = _random_problem(seed)
+    n, h, w = cost.shape[1:]
+    every = torch.arange(n).view(1, n, 1, 1).expand(1, n, h, w)
+    full = alpha_expansion(cost, 0.8, 2.0, cycles=2, weights_right=wr, weights_down=wd)
+    pruned = alpha_expansion(cost, 0.8, 2.0, cycles=2, weights_right=wr, weights_down=wd, candidates=every,
+                             candidate_radius=0)
+    assert torch.equal(full.disparity, pruned.disparity)
+    assert len(full.history[0]) == len(pruned.history[0])
+    assert all(abs(a - b) < 1e-9 * a for a, b in zip(full.history[0], pruned.history[0]))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pruned_energy_never_increases_and_its_trace_ends_at_the_energy(seed):
+    cost, wr, wd = _random_problem(seed, n=8, h=12, w=15)
+    g = torch.Generator().manual_seed(seed + 10)
+    cand = torch.randint(0, 8, (1, 2, 12, 15), generator=g)
+    res = alpha_expansion(cost, 0.8, 2.0, cycles=3, weights_right=wr, weights_down=wd, candidates=cand,
+                          candidate_radius=1)
+    hist = res.history[0]
+    assert all(b <= a for a, b in zip(hist, hist[1:])) and hist[-1] < hist[0]
+    assert abs(hist[-1] - float(res.energy)) < 1e-9 * hist[-1]
+    torch.testing.assert_close(res.energy, grid_energy(cost, res.disparity.long(), 0.8, 2.0, wr, wd))
+
+
+def test_each_pruned_move_is_optimal_over_the_pixels_it_frees():
+    """Brute force over every way to switch the freed pixels (those within the radius of a seed, not already α)
+    to α, the others fixed: the restricted min cut (edges to fixed pixels folded into the terminals) is the best."""
+    import numpy as np
+
+    from stereonet.aggregate.graphcut import _energy, _RestrictedMoves
+
+    rng = np.random.default_rng(1)
+    for trial in range(30):
+        h, w, n = 3, 4, 5
+        cost = rng.random((n, h, w)) * 3
+        labels = rng.integers(0, n, (h, w)).astype(np.int64)
+        s_right, s_down = rng.random((h, w)), rng.random((h, w))
+        cand = rng.integers(0, n, (1, h, w))
+        alpha, radius = int(rng.integers(0, n)), int(trial % 2)
+        moves = _RestrictedMoves(cand, n, radius)
+        before = _energy(cost, labels, s_right, s_down, 2.0)
+        after_labels = labels.copy()
+        change = moves.move(cost, after_labels, alpha, s_right, s_down, 2.0, 1e-12)
+        seeds = np.argwhere(cand[0] == alpha)
+        free = np.zeros((h, w), bool)
+        for y, x in seeds:
+            free[max(y - radius, 0):y + radius + 1, max(x - radius, 0):x + radius + 1] = True
+        free &= labels != alpha
+        assert np.all((after_labels == labels) | (free & (after_labels == alpha)))
+        cells = np.argwhere(free)
+        best = before
+        for bits in itertools.product((0, 1), repeat=len(cells)):
+            trial_labels = labels.copy()
+            for (y, x), bit in zip(cells, bits):
+                if bit:
+                    trial_labels[y, x] = alpha
+            best = min(best, _energy(cost, trial_labels, s_right, s_down, 2.0))
+        after = _energy(cost, after_labels, s_right, s_down, 2.0)
+        assert after <= best + 1e-9 and abs((before + change) - after) < 1e-9
+
+
+def test_pruned_matcher_and_bad_candidates(textured_pair):
+    left, right, d = textured_pair
+    out = match("graphcut", left, right, 10, cost="sad", window=3, candidates=3, candidate_radius=1)
+    assert (out.disparity[..., 10:] - d).abs().max() < 0.5
+    with pytest.raises(StereoInputError, match="candidates"):
+        match("graphcut", left, right, 10, candidates=0)
+    cost = torch.rand(1, 4, 5, 6)
+    with pytest.raises(StereoInputError, match="candidates"):
+        alpha_expansion(cost, 1.0, candidates=torch.full((1, 2, 5, 6), 4))
+    with pytest.raises(StereoInputError, match="candidates"):
+        alpha_expansion(cost, 1.0, candidates=torch.zeros(1, 2, 5, 5, dtype=torch.long))
+    with pytest.raises(StereoInputError, match="candidates"):
+        alpha_expansion(cost, 1.0, candidates=torch.zeros(1, 2, 5, 6))
+    with pytest.raises(StereoInputError, match="candidate_radius"):
+        alpha_expansion(cost, 1.0, candidates=torch.zeros(1, 2, 5, 6, dtype=torch.long), candidate_radius=-1)
