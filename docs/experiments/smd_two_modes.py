@@ -5,46 +5,63 @@ picks the mode closer to the ground truth (a bound, not a method). Results in sm
 
     python docs/experiments/smd_two_modes.py val2o|real
 """
+import statistics
 import sys
-sys.path.insert(0, __import__("os").path.dirname(__file__))
+
 import torch
 from val_sets import load
+
+from stereonet.cost.volume import build_cost_volume
 from stereonet.data import load_dataset
 from stereonet.evaluation import expand_data_specs
 from stereonet.matchers import get_matcher
-from stereonet.cost.volume import build_cost_volume
 from stereonet.metrics import soft_edge_error
-torch.set_num_threads(2)
-smd = get_matcher("smd"); dn = get_matcher("dispnet")
+
+
 def lookup(vol, d):
+    """The cost volume (B, D, H, W) at continuous disparities d (B, 1, H, W), linearly interpolated."""
     d = d.clamp(0, vol.shape[1] - 1)
-    lo = d.floor().long(); hi = (lo + 1).clamp(max=vol.shape[1] - 1); f = d - lo
+    lo = d.floor().long()
+    hi = (lo + 1).clamp(max=vol.shape[1] - 1)
+    f = d - lo
     return vol.gather(1, lo) * (1 - f) + vol.gather(1, hi) * f
+
+
 def items(spec):
     if spec == "real":
         for s in expand_data_specs("real"):
             ds = load_dataset(s)
-            for i in range(len(ds)): yield f"{s.split(':')[0]}/{i}", ds[i]
+            for i in range(len(ds)):
+                yield f"{s.split(':')[0]}/{i}", ds[i]
     else:
         ds = load(spec)
-        for i in range(len(ds)): yield f"{spec}/{i}", ds[i]
-tot = {}
-for name, it in items(sys.argv[1]):
-    l, r, md = it["left"][None].float(), it["right"][None].float(), int(it["max_disp"])
-    gt, v = it["disparity"][None], it["valid"][None].bool()
-    out = smd(l, r, md); ex = out.extras
-    mu1, mu2 = ex["mu1"], ex["mu2"]
-    vol = build_cost_volume(l, r, md, "census", window=1, census_window=7)
-    c1, c2 = lookup(vol, mu1), lookup(vol, mu2)
-    census_pick = torch.where((mu1 - mu2).abs() > 1, torch.where(c1 <= c2, mu1, mu2), out.disparity)
-    oracle = torch.where((mu1 - gt).abs() <= (mu2 - gt).abs(), mu1, mu2)
-    res = {}
-    for k, d in [("dispnet", dn(l, r, md).disparity), ("smd", out.disparity), ("census-pick", census_pick), ("oracle", oracle)]:
-        bad = float(((d - gt).abs() > 2)[v].float().mean() * 100)
-        see = soft_edge_error(d, gt, v)
-        res[k] = (bad, see)
-        tot.setdefault(k, []).append((bad, see))
-    print(name, " ".join(f"{k} {b:.1f}/{s:.2f}" for k, (b, s) in res.items()), flush=True)
-import statistics
-for k, vals in tot.items():
-    print("MEAN", k, f"bad2 {statistics.fmean(b for b, _ in vals):.2f} SEE {statistics.fmean(s for _, s in vals if s == s):.3f}")
+        for i in range(len(ds)):
+            yield f"{spec}/{i}", ds[i]
+
+
+def main():
+    torch.set_num_threads(2)
+    smd, dispnet = get_matcher("smd"), get_matcher("dispnet")
+    totals = {}
+    for name, it in items(sys.argv[1]):
+        left, right, md = it["left"][None].float(), it["right"][None].float(), int(it["max_disp"])
+        gt, valid = it["disparity"][None], it["valid"][None].bool()
+        out = smd(left, right, md)
+        mu1, mu2 = out.extras["mu1"], out.extras["mu2"]
+        vol = build_cost_volume(left, right, md, "census", window=1, census_window=7)
+        c1, c2 = lookup(vol, mu1), lookup(vol, mu2)
+        census_pick = torch.where((mu1 - mu2).abs() > 1, torch.where(c1 <= c2, mu1, mu2), out.disparity)
+        oracle = torch.where((mu1 - gt).abs() <= (mu2 - gt).abs(), mu1, mu2)
+        res = {}
+        for k, d in [("dispnet", dispnet(left, right, md).disparity), ("smd", out.disparity),
+                     ("census-pick", census_pick), ("oracle", oracle)]:
+            res[k] = (float(((d - gt).abs() > 2)[valid].float().mean() * 100), soft_edge_error(d, gt, valid))
+            totals.setdefault(k, []).append(res[k])
+        print(name, " ".join(f"{k} {b:.1f}/{s:.2f}" for k, (b, s) in res.items()), flush=True)
+    for k, vals in totals.items():
+        print("MEAN", k, f"bad2 {statistics.fmean(b for b, _ in vals):.2f} "
+              f"SEE {statistics.fmean(s for _, s in vals if s == s):.3f}")
+
+
+if __name__ == "__main__":
+    main()
