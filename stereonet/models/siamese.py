@@ -185,13 +185,38 @@ def siamese_cost_volume(feat_left: torch.Tensor, feat_right: torch.Tensor, max_d
     return 1.0 - correlation_1d(feat_left, feat_right, max_disp, reduce="sum", fill=1.0 - INVALID_COST)
 
 
+def edge_maps(disparity: torch.Tensor, valid: torch.Tensor, radius: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(near, other)`` :math:`(B, 1, H, W)`: ``near`` marks the valid pixels within ``radius`` px (Chebyshev) of
+    a depth discontinuity (:func:`stereonet.metrics.depth_discontinuities`, 1 px); ``other`` is, per pixel, the
+    valid disparity in its ``(2 radius + 1)²`` window that differs most from its own (the other side of the edge)."""
+    from stereonet.metrics import depth_discontinuities
+
+    k = 2 * radius + 1
+    edges = depth_discontinuities(disparity, valid)
+    near = (F.max_pool2d(edges.to(disparity.dtype), k, 1, radius) > 0) & valid
+    big = torch.finfo(disparity.dtype).max
+    high = F.max_pool2d(disparity.masked_fill(~valid, -big), k, 1, radius)
+    low = -F.max_pool2d((-disparity).masked_fill(~valid, -big), k, 1, radius)
+    other = torch.where(high - disparity >= disparity - low, high, low)
+    return near, other
+
+
 def sample_training_pixels(disparity: torch.Tensor, valid: torch.Tensor, num_samples: int, neg_low: float,
-                           neg_high: float, generator: torch.Generator | None = None):
+                           neg_high: float, generator: torch.Generator | None = None, edge_share: float = 0.0,
+                           edge_radius: int = 4):
     """Sample MC-CNN training triplets from ground truth.
 
     For ``num_samples`` valid left pixels per image (whose true match lies inside the right image): the
     left position (x, y), the positive right position ``x - d`` and a negative ``x - d + o`` with ``|o|``
     uniform in [neg_low, neg_high] and a random sign (flipped if it leaves the image).
+
+    ``edge_share > 0`` (depth-edge training): that share of each image's samples is drawn from the valid pixels
+    within ``edge_radius`` px of a depth discontinuity (:func:`edge_maps`; from all valid pixels in an image that
+    has none), and their negative is the match at the disparity of the other side of the edge (the window's valid
+    disparity farthest from the pixel's own) when that lies at least ``neg_low`` px from the true match and inside
+    the image, else the random one. This is the decision a depth edge asks of the features: a patch that straddles
+    the edge must match at its own surface's disparity, not at the other one's (the edge-fattening error). With
+    ``edge_share = 0`` nothing more is drawn (the same stream as before the option existed).
 
     Args:
         disparity: :math:`(B, 1, H, W)`; valid: bool :math:`(B, 1, H, W)` (non-occluded pixels).
@@ -208,7 +233,13 @@ def sample_training_pixels(disparity: torch.Tensor, valid: torch.Tensor, num_sam
     if not bool(keep.any()):
         empty = disparity.new_zeros(0, num_samples)
         return keep, empty, empty, empty, empty
-    idx = torch.multinomial(weights[keep], num_samples, replacement=True, generator=generator)  # BxN
+    n_edge = round(edge_share * num_samples) if edge_share > 0 else 0
+    idx = torch.multinomial(weights[keep], num_samples - n_edge, replacement=True, generator=generator)  # BxN
+    if n_edge:
+        near, other = edge_maps(disparity, valid, edge_radius)
+        w_edge = (ok & near[:, 0]).reshape(b, -1).to(dtype)[keep]
+        w_edge = torch.where(w_edge.sum(dim=1, keepdim=True) > 0, w_edge, weights[keep])
+        idx = torch.cat([torch.multinomial(w_edge, n_edge, replacement=True, generator=generator), idx], dim=1)
     ys, xs = (idx // w).to(dtype), (idx % w).to(dtype)
     d = disparity[keep].reshape(int(keep.sum()), -1).gather(1, idx)
     offset = torch.rand(d.shape, generator=generator, device=dev, dtype=dtype) * (neg_high - neg_low) + neg_low
@@ -216,6 +247,11 @@ def sample_training_pixels(disparity: torch.Tensor, valid: torch.Tensor, num_sam
     x_pos = xs - d
     x_neg = x_pos + sign * offset
     x_neg = torch.where((x_neg < 0) | (x_neg > w - 1), x_pos - sign * offset, x_neg).clamp(0, w - 1)
+    if n_edge:  # the first n_edge samples: the other side's disparity as the negative where it is usable
+        d_other = other[keep].reshape(int(keep.sum()), -1).gather(1, idx[:, :n_edge])
+        x_other = xs[:, :n_edge] - d_other
+        usable = ((d_other - d[:, :n_edge]).abs() >= neg_low) & (x_other >= 0) & (x_other <= w - 1)
+        x_neg[:, :n_edge] = torch.where(usable, x_other, x_neg[:, :n_edge])
     return keep, xs, ys, x_pos, x_neg
 
 
@@ -238,7 +274,7 @@ def siamese_pair_loss(net: SiameseNet, left: torch.Tensor, right: torch.Tensor, 
                       valid: torch.Tensor, num_samples: int = 512, margin: float = 0.2, neg_low: float = 1.5,
                       neg_high: float = 8.0, loss: str = "hinge",
                       generator: torch.Generator | None = None, teacher: SiameseNet | None = None,
-                      distill: float = 0.0) -> torch.Tensor:
+                      distill: float = 0.0, edge_share: float = 0.0, edge_radius: int = 4) -> torch.Tensor:
     """MC-CNN training loss on patches sampled from ground truth (see :func:`sample_training_pixels`).
 
     Only the sampled patches go through the network (as MC-CNN trains), so a step costs
@@ -247,6 +283,7 @@ def siamese_pair_loss(net: SiameseNet, left: torch.Tensor, right: torch.Tensor, 
     With a ``teacher`` (another, frozen tower) and ``distill > 0``, the loss adds ``distill`` times the mean
     squared difference between the network's similarities and the teacher's on the same positive and negative
     pairs (relational distillation: feature widths may differ, similarities are comparable).
+    ``edge_share``, ``edge_radius``: depth-edge samples and negatives (:func:`sample_training_pixels`).
 
     Args:
         left, right: images :math:`(B, C, H, W)`; disparity :math:`(B, 1, H, W)`; valid bool :math:`(B, 1, H, W)`.
@@ -254,7 +291,7 @@ def siamese_pair_loss(net: SiameseNet, left: torch.Tensor, right: torch.Tensor, 
         scalar loss (0 with a gradient path when no pixel is valid).
     """
     keep, xs, ys, x_pos, x_neg = sample_training_pixels(disparity, valid, num_samples, neg_low, neg_high,
-                                                        generator)
+                                                        generator, edge_share, edge_radius)
     if xs.numel() == 0:
         return sum(p.sum() for p in net.parameters()) * 0.0
     f_left = net.patch_features(left[keep], xs, ys)  # BxFxN

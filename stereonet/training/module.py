@@ -322,6 +322,8 @@ class SiameseModule(StereoModule):
             truth to undercut every disparity >= 2 px away by ``sgm_margin`` (Hamming bits of the aggregated cost)
             on the non-occluded pixels. About 3.5 s per batch of 4 at 96x192 on 2 threads (measured alone).
         sgm_margin, learned_weight: see ``sgm_loss``.
+        edge_share, edge_radius: training steps only: the share of samples drawn near depth edges, with the other
+            side's disparity as their negative (:func:`~stereonet.models.siamese.sample_training_pixels`; 0 = off).
     """
 
     model_name = "siamese"
@@ -331,9 +333,13 @@ class SiameseModule(StereoModule):
                  lr: float = 1e-3, weight_decay: float = 0.0, schedule_steps: int = 5000,
                  teacher: str | None = None, distill: float = 0.0, init_weights: str | None = None,
                  sgm_loss: float = 0.0, sgm_margin: float = 16.0, learned_weight: float = 0.9,
-                 inputs: str = "grey", census_window: int = 5) -> None:
+                 inputs: str = "grey", census_window: int = 5, edge_share: float = 0.0,
+                 edge_radius: int = 4) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
+        if not 0.0 <= edge_share <= 1.0 or edge_radius < 1:
+            raise ValueError(f"edge_share, edge_radius: expected a share in [0, 1] and >= 1 px, got {edge_share}, "
+                             f"{edge_radius}")
         if loss not in ("hinge", "bce"):
             raise ValueError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
         if distill < 0:
@@ -375,7 +381,9 @@ class SiameseModule(StereoModule):
             teacher = self._teacher[0] = self._teacher[0].to(batch["left"].device)
         loss = siamese_pair_loss(self.model, batch["left"], batch["right"], batch["disparity"], valid,
                                  hp.num_samples, hp.margin, hp.neg_low, hp.neg_high, hp.loss,
-                                 teacher=teacher, distill=hp.distill)
+                                 teacher=teacher, distill=hp.distill,
+                                 edge_share=hp.get("edge_share", 0.0) if self.training else 0.0,
+                                 edge_radius=hp.get("edge_radius", 4))
         if self.training and hp.get("sgm_loss", 0.0) > 0:
             sgm_term = self._sgm_term(batch, valid)
             return loss + hp.sgm_loss * sgm_term, None, {"sgm_hinge": sgm_term.detach()}

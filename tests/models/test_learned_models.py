@@ -525,3 +525,34 @@ def test_plane_conv3d_is_conv3d():
     plain = torch.nn.Conv3d(3, 5, 3, padding=1)
     plain.load_state_dict(conv.state_dict())
     torch.testing.assert_close(plain(x), out, rtol=1e-5, atol=1e-5)
+
+
+def test_edge_samples_sit_near_depth_edges_with_the_other_side_as_negative():
+    """A 40-px-wide front plane (disparity 12) on a back plane (disparity 3): with edge_share 0.5 half of the samples
+    lie within the radius of the plane's outline (both pixels of a jump are marked) and take the other plane's match as their negative; with
+    edge_share 0 the draw is the same as before the option existed."""
+    from stereonet.models.siamese import edge_maps, sample_training_pixels
+
+    disp = torch.full((2, 1, 30, 80), 3.0)
+    disp[..., 30:70] = 12.0
+    valid = torch.ones_like(disp, dtype=torch.bool)
+    near, other = edge_maps(disp, valid, 4)
+    assert near[0, 0, 5].nonzero().flatten().tolist() == list(range(25, 35)) + list(range(65, 75))
+    assert other[0, 0, 5, 27] == 12.0 and other[0, 0, 5, 31] == 3.0 and other[0, 0, 5, 10] == 3.0
+
+    def draw(**kw):
+        return sample_training_pixels(disp, valid, 200, 1.5, 8.0, torch.Generator().manual_seed(3), **kw)
+
+    plain = draw()
+    off = draw(edge_share=0.0)
+    assert all(torch.equal(a, b) for a, b in zip(plain, off))
+    keep, xs, ys, x_pos, x_neg = draw(edge_share=0.5)
+    d = disp[0, 0, 0, xs[0].long()]
+    edge = ((xs[0] >= 25) & (xs[0] <= 34)) | ((xs[0] >= 65) & (xs[0] <= 74))
+    assert bool(edge[:100].all()) and float(edge[100:].float().mean()) < 0.5
+    side = other[0, 0, 0, xs[0, :100].long()]  # the window's farthest disparity: the other plane where it reaches
+    usable = ((side - d[:100]).abs() >= 1.5) & (xs[0, :100] - side >= 0)
+    assert float(usable.float().mean()) > 0.6 and set(side[usable].tolist()) == {3.0, 12.0}
+    assert torch.equal(x_neg[0, :100][usable], (xs[0, :100] - side)[usable])
+    assert bool(((x_neg[0, :100] - x_pos[0, :100]).abs()[~usable] >= 1.5).all())  # the random negatives elsewhere
+    assert torch.equal(x_pos[0], xs[0] - d)
