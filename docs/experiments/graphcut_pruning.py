@@ -1,6 +1,7 @@
 """Issue 15 item 3: graphcut with and without label pruning on data_gen sets (rule in graphcut_pruning.txt).
 
     python docs/experiments/graphcut_pruning.py "val2n;val4n" [K:r,K:r,...]
+    python docs/experiments/graphcut_pruning.py "val2q;val4q" 2:2:2,4:2:4   (K:r:census_candidates)
 
 Prints, per configuration and set, the mean bad-2 after eval.py's fill and the summed wall time over the pairs
 with its ratio to opencv-sgbm's on the same pairs (same process)."""
@@ -19,8 +20,10 @@ configs = [None] + [tuple(int(v) for v in c.split(":")) for c in
 graphcut = get_matcher("graphcut")
 names = ["opencv-sgbm"]
 for c in configs:
-    name = "gc-full" if c is None else f"gc-k{c[0]}-r{c[1]}"
+    name = "gc-full" if c is None else f"gc-k{c[0]}-r{c[1]}" + (f"-c{c[2]}" if len(c) > 2 else "")
     options = {"candidates": None} if c is None else {"candidates": c[0], "candidate_radius": c[1]}
+    if c is not None and len(c) > 2:
+        options["census_candidates"] = c[2]
     register(name, kind="classical", description="exp")(functools.partial(graphcut, **options))
     names.append(name)
 ev = run_evaluation(names, specs, fill=True, progress=False, load=load)

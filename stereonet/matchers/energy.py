@@ -156,12 +156,17 @@ def bp_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str
 
 
 def candidate_labels(volume: torch.Tensor, k: int, smoothness: float, truncation: float,
-                     weights_right: torch.Tensor | None, weights_down: torch.Tensor | None) -> torch.Tensor:
+                     weights_right: torch.Tensor | None, weights_down: torch.Tensor | None,
+                     census: int = 0, left: torch.Tensor | None = None,
+                     right: torch.Tensor | None = None) -> torch.Tensor:
     """The ``k`` best labels per pixel (B, k, H, W) of an 8-path SGM aggregation of the MRF's own energy, the
     candidates of ``graphcut``'s pruned moves: ``P1`` = ``λ·w̄`` for a change of one label and ``P2`` =
     ``λ·w̄·T`` for larger ones, ``w̄`` the mean contrast weight of the edges (SGM's path minimisation
     approximates the energy's min-marginals, so its best labels are the ones the expansion moves keep: on Cones
-    its 4 best hold the label of ~98 % of the pixels of the unpruned result, the data cost's 4 best ~90 %)."""
+    its 4 best hold the label of ~98 % of the pixels of the unpruned result, the data cost's 4 best ~90 %).
+    ``census > 0`` adds that many best labels of ``sgm``'s own aggregation (census 7x7, its penalties; needs
+    ``left``/``right``): proposals from a stronger cost where the MRF's own (a 3x3 AD-census) is weak, as on
+    low-texture surfaces (fusion of another method's proposals, as in Lempitsky et al.'s fusion moves)."""
     from stereonet.aggregate.sgm import sgm_aggregate
 
     mean_weight = 1.0
@@ -170,7 +175,13 @@ def candidate_labels(volume: torch.Tensor, k: int, smoothness: float, truncation
     P1 = smoothness * mean_weight
     n = volume.shape[1]
     aggregated = sgm_aggregate(volume, P1, P1 * min(truncation, float(n)), paths=8)
-    return aggregated.topk(min(k, n), dim=1, largest=False).indices
+    labels = aggregated.topk(min(k, n), dim=1, largest=False).indices
+    if census > 0:
+        from stereonet.matchers.local import sgm
+
+        proposals = sgm(left, right, n - 1, keep_volume=True).cost_volume
+        labels = torch.cat([labels, proposals.topk(min(census, n), dim=1, largest=False).indices], dim=1)
+    return labels
 
 
 @register("graphcut", kind="classical",
@@ -180,7 +191,7 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
                      window: int = DEFAULT_WINDOW, smoothness: float = 0.3, truncation: float = 2.0,
                      cycles: int = 1, contrast_threshold: float = 0.03, contrast_factor: float = 3.0,
                      subpixel: bool = True, cost_options: dict | None = None, candidates: int | None = None,
-                     candidate_radius: int = 2) -> StereoOutput:
+                     candidate_radius: int = 2, census_candidates: int = 0) -> StereoOutput:
     """α-expansion. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
 
     ``cycles`` passes over the ``max_disp + 1`` labels. ``candidates`` (label pruning): the move for ``α`` frees
@@ -189,6 +200,7 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
     pixels' graph. None (default): every move is a max-flow on the whole ``H·W``-node grid (the textbook method).
     Pruning (``candidates=4``, radius 2) is 3-13x faster on the real pairs and 12-30x on data_gen's, but 2-3 points of
     bad-2 worse on data_gen's low-texture renders, so it is not the default (``docs/experiments/graphcut_pruning.txt``).
+    ``census_candidates`` (with ``candidates``): also that many best labels of ``sgm``'s census aggregation.
     """
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
                                   contrast_factor)
@@ -196,7 +208,9 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
     if candidates is not None:
         if isinstance(candidates, bool) or not isinstance(candidates, int) or candidates < 1:
             raise StereoInputError(f"candidates: expected an integer >= 1 or None, got {candidates!r}")
-        labels = candidate_labels(volume, candidates, smoothness, truncation, wr, wd)
+        if isinstance(census_candidates, bool) or not isinstance(census_candidates, int) or census_candidates < 0:
+            raise StereoInputError(f"census_candidates: expected an integer >= 0, got {census_candidates!r}")
+        labels = candidate_labels(volume, candidates, smoothness, truncation, wr, wd, census_candidates, left, right)
     with inputs_checked(volume):  # built here from checked images: no second pass over it
         res = alpha_expansion(volume, smoothness, truncation, cycles, None, wr, wd, labels, candidate_radius)
     disp, valid, occlusion = _occlusion_filled(res.disparity, _refine(volume, res.disparity, subpixel))
