@@ -39,6 +39,9 @@ def warm_up(verbose: bool = True) -> list[tuple[str, float]]:
             continue
         step(name, lambda n=name: matchers.match(n, left, right, 16))
 
+    # graphcut's unpruned moves (candidates=None) build the whole grid graph with another kernel
+    step("graphcut unpruned", lambda: matchers.match("graphcut", left, right, 16, candidates=None))
+
     def learned_cost():  # the kernels of the Siamese matchers' cost (no weights needed)
         from stereonet.models.siamese import siamese_cost_volume
 

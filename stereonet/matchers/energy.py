@@ -12,7 +12,8 @@ Defaults were tuned on the Middlebury pairs of ``../shared/data`` (see ``scripts
   contrast-weighted truncated-linear smoothness; ``extras["beliefs"]`` holds the final beliefs when asked for
   (``keep_beliefs=True``).
 * ``graphcut``: α-expansion (:func:`stereonet.aggregate.graphcut.alpha_expansion`) from the WTA labels,
-  same energy as ``bp``; ``extras["energy"]`` holds the final energy per batch item.
+  same energy as ``bp``, each move pruned to the pixels whose SGM-ranked candidates hold its label (see
+  :func:`graphcut_matcher`); ``extras["energy"]`` holds the final energy per batch item.
 
 ``bp``, ``graphcut`` and ``dp`` with ``mode="energy"`` do not model occlusions in their energy; the pixels their
 own map declares hidden in the right view (a pixel further right lands on the same right pixel or beyond it,
@@ -186,21 +187,24 @@ def candidate_labels(volume: torch.Tensor, k: int, smoothness: float, truncation
 
 @register("graphcut", kind="classical",
           description="Graph cuts: alpha-expansion (Boykov-Veksler-Zabih) with PyMaxflow, contrast-weighted "
-                      "truncated-linear smoothness on an AD-Census cost, started from WTA")
+                      "truncated-linear smoothness on an AD-Census cost, started from WTA, moves pruned to SGM's "
+                      "best labels")
 def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cost: str = DEFAULT_COST,
                      window: int = DEFAULT_WINDOW, smoothness: float = 0.3, truncation: float = 2.0,
                      cycles: int = 1, contrast_threshold: float = 0.03, contrast_factor: float = 3.0,
-                     subpixel: bool = True, cost_options: dict | None = None, candidates: int | None = None,
-                     candidate_radius: int = 2, census_candidates: int = 0) -> StereoOutput:
+                     subpixel: bool = True, cost_options: dict | None = None, candidates: int | None = 2,
+                     candidate_radius: int = 2, census_candidates: int = 2) -> StereoOutput:
     """α-expansion. ``left``/``right`` :math:`(B, C, H, W)` -> :class:`StereoOutput`.
 
-    ``cycles`` passes over the ``max_disp + 1`` labels. ``candidates`` (label pruning): the move for ``α`` frees
-    only the pixels within ``candidate_radius`` of a pixel whose ``candidates`` best labels include ``α``, ranked
-    by an 8-path SGM aggregation of the same energy (:func:`candidate_labels`); each move is one max-flow on those
-    pixels' graph. None (default): every move is a max-flow on the whole ``H·W``-node grid (the textbook method).
-    Pruning (``candidates=4``, radius 2) is 3-13x faster on the real pairs and 12-30x on data_gen's, but 2-3 points of
-    bad-2 worse on data_gen's low-texture renders, so it is not the default (``docs/experiments/graphcut_pruning.txt``).
-    ``census_candidates`` (with ``candidates``): also that many best labels of ``sgm``'s census aggregation.
+    ``cycles`` passes over the ``max_disp + 1`` labels. Label pruning (default): the move for ``α`` frees only
+    the pixels within ``candidate_radius`` of a pixel that lists ``α`` among its candidates, and each move is one
+    max-flow on those pixels' graph: the ``candidates`` best labels of an 8-path SGM aggregation of the same energy
+    (:func:`candidate_labels`) and the ``census_candidates`` best of ``sgm``'s census aggregation (proposals from
+    a stronger cost where the MRF's 3x3 AD-census is weak). Chosen on fresh data_gen sets only
+    (``docs/experiments/graphcut_pruning.txt``): with 2 + 2 candidates it was 7-10x faster than the unpruned
+    moves and lower in bad-2 (val2q 41.9 -> 29.6, val4q 81.2 -> 65.8); with the energy's own candidates alone it
+    lost 2-3 points on low-texture renders. ``candidates=None``: every move is a max-flow on the whole
+    ``H·W``-node grid (the textbook method, before the twenty-eighth session the default).
     """
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
                                   contrast_factor)
