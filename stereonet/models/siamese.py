@@ -234,7 +234,9 @@ def sample_training_pixels(disparity: torch.Tensor, valid: torch.Tensor, num_sam
         empty = disparity.new_zeros(0, num_samples)
         return keep, empty, empty, empty, empty
     n_edge = round(edge_share * num_samples) if edge_share > 0 else 0
-    idx = torch.multinomial(weights[keep], num_samples - n_edge, replacement=True, generator=generator)  # BxN
+    idx = weights.new_zeros(int(keep.sum()), 0, dtype=torch.long)
+    if num_samples > n_edge:
+        idx = torch.multinomial(weights[keep], num_samples - n_edge, replacement=True, generator=generator)  # BxN
     if n_edge:
         near, other = edge_maps(disparity, valid, edge_radius)
         w_edge = (ok & near[:, 0]).reshape(b, -1).to(dtype)[keep]

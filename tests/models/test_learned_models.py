@@ -556,3 +556,5 @@ def test_edge_samples_sit_near_depth_edges_with_the_other_side_as_negative():
     assert torch.equal(x_neg[0, :100][usable], (xs[0, :100] - side)[usable])
     assert bool(((x_neg[0, :100] - x_pos[0, :100]).abs()[~usable] >= 1.5).all())  # the random negatives elsewhere
     assert torch.equal(x_pos[0], xs[0] - d)
+    only = draw(edge_share=1.0)[1]  # every sample near an edge
+    assert bool((((only >= 25) & (only <= 34)) | ((only >= 65) & (only <= 74))).all())
