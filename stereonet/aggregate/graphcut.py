@@ -135,9 +135,10 @@ def alpha_expansion(cost: torch.Tensor, smoothness: float, truncation: float = 2
     never increases; it is no longer the optimal expansion move over the whole image, so the result can differ
     from the unrestricted one (either way: the moves see a different sequence of labellings). The graphs shrink
     from ``H·W`` nodes to about ``K·(2r + 1)²/D`` of that, which is what makes the method usable on large pairs and
-    ranges (``graphcut(candidates=K)`` takes the top labels of an SGM aggregation of the same energy). Measured on
-    data_gen's low-texture renders it loses 2-3 points of bad-2 against the unpruned moves, which flip whole
-    low-texture regions to a label none of their pixels ranks high (``docs/experiments/graphcut_pruning.txt``).
+    ranges. Which candidates matters (``docs/experiments/graphcut_pruning.txt``): the top labels of an SGM
+    aggregation of the same energy alone lose 2-3 points of bad-2 on data_gen's low-texture renders, where the
+    unpruned moves flip whole regions to a label none of their pixels ranks high; adding ``sgm``'s census proposals
+    (``graphcut``'s default) makes the pruned result better than the unpruned one there.
 
     Args:
         cost: :math:`(B, D, H, W)` finite data costs, lower = better.

@@ -3,7 +3,8 @@
 Each builds a cost volume with :func:`stereonet.cost.build_cost_volume` (default AD-Census on a 3×3
 window: robust to the radiometric differences of real photos, see :mod:`stereonet.cost.volume`), runs its
 optimizer and returns a :class:`~stereonet.types.StereoOutput` with the data cost volume attached.
-Defaults were tuned on the Middlebury pairs of ``../shared/data`` (see ``scripts/bench_global.py``).
+Defaults were tuned on the Middlebury pairs of ``../shared/data`` (see ``scripts/bench_global.py``), except
+graphcut's move pruning, chosen on data_gen sets only (``docs/experiments/graphcut_pruning.txt``).
 
 * ``dp``: the three-case scanline DP (:func:`stereonet.aggregate.dp.scanline_dp`); left-occluded pixels are
   ``valid = False``, filled from their left neighbour on the scanline, and labelled in
