@@ -2,6 +2,7 @@
 
     python docs/experiments/graphcut_pruning.py "val2n;val4n" [K:r,K:r,...]
     python docs/experiments/graphcut_pruning.py "val2q;val4q" 2:2:2,4:2:4   (K:r:census_candidates)
+    python docs/experiments/graphcut_pruning.py "val2s;val4s" 2:2:2,2:1:2,1:2:1,1:1:1 --no-full
 
 Prints, per configuration and set, the mean bad-2 after eval.py's fill and the summed wall time over the pairs
 with its ratio to opencv-sgbm's on the same pairs (same process)."""
@@ -15,8 +16,10 @@ from stereonet.evaluation import run_evaluation
 from stereonet.matchers import get_matcher, register
 
 specs = sys.argv[1].split(";")
-configs = [None] + [tuple(int(v) for v in c.split(":")) for c in
-                    (sys.argv[2] if len(sys.argv) > 2 else "2:1,2:2,3:1,3:2,4:1,4:2").split(",")]
+configs = [tuple(int(v) for v in c.split(":")) for c in
+           (sys.argv[2] if len(sys.argv) > 2 else "2:1,2:2,3:1,3:2,4:1,4:2").split(",")]
+if "--no-full" not in sys.argv:
+    configs = [None] + configs
 graphcut = get_matcher("graphcut")
 names = ["opencv-sgbm"]
 for c in configs:
