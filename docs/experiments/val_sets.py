@@ -15,7 +15,8 @@ twenty-eighth session's graphcut label pruning), ``prior2``/``prior4`` (12 pairs
 chooser's class prior) ``val2o``/``val4o`` on seeds 5184/5185 (its prior-corrected choice) and ``val2p``/``val4p`` on seeds 5186/5187 (its
 depth-edge Siamese run), ``val2q``/``val4q`` on seeds 5188/5189 (graphcut pruning with sgm's proposals), ``val2r``/``val4r`` on seeds
 5190/5191 (the depth-edge run of the shipped Siamese recipe), ``val2s``/``val4s`` on seeds 5192/5193 (graphcut's
-lighter pruning), ``val2t``/``val4t`` on seeds 5194/5195 (the depth-edge run at share 0.25); any other spec as
+lighter pruning), ``val2t``/``val4t`` on seeds 5194/5195 (the depth-edge run at share 0.25), ``val2u``/``val4u`` on seeds 5196/5197 (the
+twenty-ninth session's added depth-edge samples); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -36,7 +37,8 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2o": (12, 5184, 2), "val4o": (8, 5185, 4), "val2p": (12, 5186, 2), "val4p": (8, 5187, 4),
         "val2q": (12, 5188, 2), "val4q": (8, 5189, 4), "val2r": (12, 5190, 2), "val4r": (8, 5191, 4),
         "val2s": (12, 5192, 2), "val4s": (8, 5193, 4),
-        "val2t": (12, 5194, 2), "val4t": (8, 5195, 4)}
+        "val2t": (12, 5194, 2), "val4t": (8, 5195, 4),
+        "val2u": (12, 5196, 2), "val4u": (8, 5197, 4)}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
