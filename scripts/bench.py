@@ -1,7 +1,7 @@
 """The fixed benchmark behind ``make bench``: every registered method on the real pairs of ../shared/data and a
 seeded synthetic set, written to ``BENCHMARKS.md`` with plots under ``docs/bench/``.
 
-    python scripts/bench.py [--methods all] [--synthetic N] [--budget SECONDS] [--out BENCHMARKS.md]
+    python scripts/bench.py [--methods all] [--synthetic N] [--budget SECONDS] [--repeats 3] [--out BENCHMARKS.md]
 
 All methods run in this one process through :func:`stereonet.evaluation.run_evaluation`, pair by pair, so
 their times and the ratios to ``opencv-sgbm`` are measured under the same load. Every number in the tables
@@ -9,7 +9,9 @@ is the **median over pairs** (robust to one odd pair); the shared filling of ``e
 to every method (dense comparison) and the raw bad-2 and density before filling are reported beside it.
 ``--budget`` bounds the run: once a method has used that many seconds on one dataset its remaining pairs
 there are skipped, and ``--pair-cap`` skips a pair whose projected time (from the method's speed per pixel
-and disparity so far) is above it; the tables count the skipped pairs.
+and disparity so far) is above it; the tables count the skipped pairs. ``--repeats`` times every call that many
+times per pair, the methods interleaved round by round, and reports the median (one call's time swings with
+the machine's other work; a single slow sample used to decide a method's worst pair).
 """
 
 from __future__ import annotations
@@ -378,6 +380,9 @@ def build_parser() -> OneLineParser:
                    help="seconds a method may spend per dataset before its remaining pairs are skipped")
     p.add_argument("--pair-cap", type=float, default=40.0,
                    help="skip a pair when a method's projected time for it (from its speed so far) exceeds this")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="timed calls per method and pair, methods interleaved round by round; the median is "
+                        "reported (default %(default)s)")
     p.add_argument("--out", type=Path, default=REPO / "BENCHMARKS.md")
     p.add_argument("--docs", type=Path, default=REPO / "docs" / "bench")
     p.add_argument("--merge", action="store_true",
@@ -397,6 +402,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         skipped: list[str] = []
         methods = parse_methods(args.methods, skipped)
+        if args.repeats < 1:
+            raise StereoInputError(f"--repeats: expected a count >= 1, got {args.repeats}")
         if args.synthetic < 0:
             raise StereoInputError(f"--synthetic: expected a count >= 0, got {args.synthetic}")
         real = [] if args.no_real else expand_data_specs("real")
@@ -428,7 +435,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         t0, load0 = time.perf_counter(), _load_average()
         with tempfile.TemporaryDirectory(prefix="stereonet-bench-") as tmp:
             ev = run_evaluation(methods, specs, fill=True, plots=Path(tmp), progress=not args.no_progress,
-                                budget=args.budget, pair_cap=args.pair_cap)
+                                budget=args.budget, pair_cap=args.pair_cap, repeats=args.repeats)
             if earlier:
                 run = max(p.run for p in earlier) + 1
                 for p in ev.pairs:
@@ -439,7 +446,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             load = None if load0 is None else (load0, _load_average() or load0)
             caps = (f"Time caps: a method's remaining pairs on a dataset are skipped after {args.budget:g} s there, "
                     f"and a pair is skipped when its projected time exceeds {args.pair_cap:g} s; skipped pairs are "
-                    "counted in the method column.")
+                    "counted in the method column."
+                    + (f" Times: each method's median of {args.repeats} timed calls per pair, the methods interleaved "
+                       "round by round on the pair (a load burst hits one sample of each, not every sample of one); "
+                       "metrics and peak memory from the first call." if args.repeats > 1 else ""))
             meta = {"synthetic": synthetic or "none", "seconds": time.perf_counter() - t0, "skipped": skipped,
                     "load": load, "caps": caps, "environment": _environment()}
             if earlier and run_json.is_file():

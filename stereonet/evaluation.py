@@ -190,7 +190,7 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                    shard: tuple[int, int] = (0, 1), plots: Path | None = None, progress: bool = True,
                    options: dict[str, dict] | None = None, load: Callable | None = None,
                    budget: float | None = None, pair_cap: float | None = None,
-                   memory_budget: float | None = None) -> Evaluation:
+                   memory_budget: float | None = None, repeats: int = 1) -> Evaluation:
     """Run every method on every pair of every dataset spec; return per-pair results and table rows.
 
     ``load`` (default :func:`stereonet.data.load_dataset`) maps a spec to a dataset of item dicts; it is
@@ -201,7 +201,12 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
     this many seconds, projected from its median time per unit of work (H x W x (max_disp + 1)) so far.
     ``memory_budget`` (MiB): each matcher call runs within it, in overlapping strips when the pair needs more
     (:func:`stereonet.tiling.match_with_budget`); None = whole pairs.
+    ``repeats``: each pair's calls are timed this many times, the methods interleaved round by round (a load burst
+    then hits one sample of each method, not all samples of one), and the pair's ``seconds`` is the median; the
+    metrics, output and peak memory come from the first round, and the caps count that median once per pair.
     """
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise StereoInputError(f"repeats: expected an integer >= 1, got {repeats!r}")
     from tqdm import tqdm
 
     from stereonet import matchers
@@ -238,12 +243,13 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                 left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
                 outs: dict[str, StereoOutput | None] = {}
                 work = float(left.shape[-2] * left.shape[-1] * (md + 1))
+                pending: list[tuple[str, tuple | None]] = []  # (method, _run_one's result or None = skipped)
                 for m in methods:
                     bar.set_postfix_str(f"{label}/{name} {m}", refresh=False)
                     projected = float(np.median(rates[m])) * work if rates.get(m) else 0.0
                     if (budget is not None and spent.get((m, label), 0.0) > budget) or \
                             (pair_cap is not None and projected > pair_cap):
-                        result.pairs.append(PairResult(m, label, name, None, None, math.nan, math.nan, skipped=True))
+                        pending.append((m, None))
                         outs[m] = None
                         bar.update(1)
                         continue
@@ -251,12 +257,23 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                         _warm_up(fns[m], item, md)
                         warmed.add(m)
                     res, out = _run_one(fns[m], left, right, md, item, fill)
-                    result.pairs.append(PairResult(m, label, name, *res, work=work))
-                    if not math.isnan(res[2]):
-                        spent[(m, label)] = spent.get((m, label), 0.0) + res[2]
-                        rates.setdefault(m, []).append(res[2] / work)
+                    pending.append((m, res))
                     outs[m] = out
                     bar.update(1)
+                seconds = {m: [res[2]] for m, res in pending if res is not None and not math.isnan(res[2])}
+                for r in range(1, repeats):  # timing rounds, methods interleaved
+                    bar.set_postfix_str(f"{label}/{name} timing round {r + 1}/{repeats}", refresh=True)
+                    for m in seconds:
+                        seconds[m].append(_time_one(fns[m], left, right, md))
+                for m, res in pending:
+                    if res is None:
+                        result.pairs.append(PairResult(m, label, name, None, None, math.nan, math.nan, skipped=True))
+                        continue
+                    if m in seconds:
+                        res = (res[0], res[1], float(np.median(seconds[m])), *res[3:])
+                        spent[(m, label)] = spent.get((m, label), 0.0) + res[2]
+                        rates.setdefault(m, []).append(res[2] / work)
+                    result.pairs.append(PairResult(m, label, name, *res, work=work))
                 if plots is not None:
                     _plot_pair(plots / safe_name(label) / f"{safe_name(name)}.png", item, outs, md)
     result.rows = aggregate(result.pairs, methods, [label for label, _ in datasets])
@@ -285,6 +302,13 @@ def _run_one(fn: Callable, left: torch.Tensor, right: torch.Tensor, max_disp: in
             raise
         msg = " ".join(str(e).split()) or "no message"
         return (None, None, math.nan, math.nan, f"{type(e).__name__}: {msg}"), None
+
+
+def _time_one(fn: Callable, left: torch.Tensor, right: torch.Tensor, max_disp: int) -> float:
+    """Seconds of one more call, measured as :func:`_run_one` measures the first (same memory hand-back)."""
+    with torch.no_grad(), PeakMemory(), Stopwatch() as clock:
+        fn(left, right, max_disp)
+    return clock.seconds
 
 
 def _mean(values: list[float]) -> float | None:

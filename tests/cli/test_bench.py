@@ -115,3 +115,9 @@ def test_bench_classical_bad_method_is_one_line_before_anything_runs(capsys):
         assert e.value.code == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "unknown matcher" in err and "--methods/--accuracy" in err
+
+
+def test_bench_bad_repeats_is_one_line(capsys):
+    assert bench.main(["--repeats", "0", "--no-real", "--synthetic", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--repeats" in err[0]

@@ -219,3 +219,50 @@ def test_pair_cap_skips_projected_slow_pairs():
                                pair_cap=1e-9)
     row = result.rows[0]
     assert row["pairs"] == 1 and row["skipped"] == 2  # the first pair runs: nothing to project from yet
+
+
+def test_repeats_interleave_methods_and_report_the_median(monkeypatch):
+    """repeats=3: a pair's calls go round by round (A B, A B, A B), the pair's seconds is the median of its three
+    timed calls, the metrics are the first call's, the budget counts the median, and skipped pairs keep their place."""
+    from stereonet import matchers
+
+    calls: list[str] = []
+    times = {"A": iter([0.9, 0.2, 0.4, 7.0, 0.6, 0.5]), "B": iter([0.1, 5.0, 3.0])}
+
+    class FakeClock:  # each timed call "takes" the next of its method's times
+        def __enter__(self):
+            self.seconds = 0.0
+            return self
+
+        def __exit__(self, *exc):
+            self.seconds = next(times[calls[-1]])
+
+    def make(tag):
+        def fn(left, right, max_disp, **_):
+            if left.shape[-1] > 100:  # not the untimed warm-up crop
+                calls.append(tag)
+            return matchers.match("opencv-bm", left, right, max_disp)
+        return fn
+
+    once = ev.run_evaluation(["opencv-bm"], ["fake"], progress=False, load=lambda s: tiny_dataset(s, n=2))
+    for tag in "AB":
+        monkeypatch.setitem(matchers._REGISTRY, f"fake-{tag}",
+                            matchers.MatcherSpec(f"fake-{tag}", make(tag), "classical", "x"))
+    from stereonet import evaluation
+
+    monkeypatch.setattr(evaluation, "Stopwatch", FakeClock)
+    result = ev.run_evaluation(["fake-A", "fake-B"], ["fake"], progress=False, repeats=3, budget=1.0,
+                               load=lambda s: tiny_dataset(s, n=2))
+    assert calls == ["A", "B", "A", "B", "A", "B", "A", "A", "A"]
+    assert [(p.method, p.pair) for p in result.pairs] == [("fake-A", "pair0"), ("fake-B", "pair0"),
+                                                           ("fake-A", "pair1"), ("fake-B", "pair1")]
+    a0, b0, a1, b1 = result.pairs
+    assert (a0.seconds, b0.seconds, a1.seconds) == (0.4, 3.0, 0.6)  # medians, not the first call's 0.9 / 0.1 / 7.0
+    assert b1.skipped and not a1.skipped  # B's median 3.0 on pair0 is over the budget, A's 0.4 is not
+    assert [a0.metrics["bad2"], a1.metrics["bad2"]] == [p.metrics["bad2"] for p in once.pairs]
+
+
+def test_repeats_must_be_a_positive_count():
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="repeats: expected an integer >= 1"):
+            ev.run_evaluation(["opencv-bm"], ["fake"], progress=False, repeats=bad, load=tiny_dataset)
