@@ -181,7 +181,8 @@ def candidate_labels(volume: torch.Tensor, k: int, smoothness: float, truncation
     if census > 0:
         from stereonet.matchers.local import sgm
 
-        proposals = sgm(left, right, n - 1, keep_volume=True).cost_volume
+        out = sgm(left, right, n - 1, keep_volume="fixed")  # int16 on the CPU path: the same ranking, no float copy
+        proposals = out.extras.get("aggregate_fixed", out.cost_volume)
         labels = torch.cat([labels, proposals.topk(min(census, n), dim=1, largest=False).indices], dim=1)
     return labels
 

@@ -253,6 +253,9 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     margin (:func:`~stereonet.select.confidence.cost_margin_confidence`), 0 on invalid pixels. The returned
     ``cost_volume`` is the aggregated cost, except on the CPU fast path (16-bit fixed point, below) without
     ``keep_volume=True``, where the float32 volume is never built (``cost_volume=None``, as for ``bm-*``).
+    ``keep_volume="fixed"``: on that path, the int16 aggregate itself in ``extras["aggregate_fixed"]`` (a
+    (B, D, H, W) view of the kernel's (H, W, D) arrays, in units of ``1 / extras["aggregate_scale"]``; what
+    ``graphcut``'s census proposals rank, without the float32 copy), elsewhere the float32 ``cost_volume``.
 
     Census costs are integers, so ``P1`` and the edge-adapted ``P2`` are rounded to multiples of
     :data:`~stereonet.aggregate.sgm.CENSUS_PENALTY_STEP` (1/16 bit) in every backend; the CPU fast path then
@@ -267,7 +270,11 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     """
     opts = from_opencv_names({**SGM_DEFAULTS, **options})
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
-    keep_volume = bool(opts.pop("keep_volume", False))
+    keep_volume = opts.pop("keep_volume", False)
+    fixed_volume = isinstance(keep_volume, str) and keep_volume == "fixed"
+    if isinstance(keep_volume, str) and not fixed_volume:
+        raise StereoInputError(f"keep_volume: expected a bool or 'fixed', got {keep_volume!r}")
+    keep_volume = bool(keep_volume) and not fixed_volume
     cost_opts, back = _split(opts, {})
     cost_name, window = cost_opts.pop("cost"), cost_opts.pop("window")
     if cost_name not in ("census", "census_ad"):
@@ -300,7 +307,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
         bits = census_window * census_window  # >= every census distance and the out-of-image fill
         s = None if extra is not None or keep_volume else fixed_point_scale_for(P1, P2, directions, step, bits)
-        if extra is not None and mix_step is not None and not keep_volume:
+        if extra is not None and mix_step is not None and not keep_volume and not fixed_volume:
             # the mixed cost on the mix_step grid as uint8 in units of mix_step: the same 16-bit path with the
             # penalties in those units (exact scalings by a power of two), selected in cost units again
             q = 1.0 / mix_step
@@ -328,9 +335,12 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
             del vols
             selection, confidence = select_disparity_confidence_fixed(
                 accs, s, back.pop("subpixel"), back.pop("uniqueness"), back.pop("lr_tol"), left.dtype, left.device)
+            fixed = torch.stack([torch.from_numpy(a) for a in accs]).permute(0, 3, 1, 2) if fixed_volume else None
             del accs
             out = _filter(selection, None, **back)
             out.confidence = confidence * out.valid.to(confidence.dtype)
+            if fixed is not None:
+                out.extras.update(aggregate_fixed=fixed, aggregate_scale=torch.tensor(s))
             return out
         if extra is not None:
             vols = _mixed_hwd(vols, *extra, mix_step)

@@ -237,6 +237,15 @@ def test_registered_sgm_fast_path_equals_public_composition():
     slow = matchers.match("sgm", left, right, 20, backend="torch")  # the float volume path, torch cost
     assert torch.equal(slow.valid, out.valid) and torch.equal(slow.disparity, out.disparity)
     assert torch.equal(slow.cost_volume, agg)
+    fixed = matchers.match("sgm", left, right, 20, keep_volume="fixed")  # the int16 aggregate itself
+    acc, scale = fixed.extras["aggregate_fixed"], fixed.extras["aggregate_scale"]
+    assert fixed.cost_volume is None and acc.dtype == torch.int16 and acc.shape == agg.shape
+    assert torch.equal(acc.float() / scale.float(), agg)
+    assert torch.equal(fixed.disparity, out.disparity) and torch.equal(fixed.valid, out.valid)
+    elsewhere = matchers.match("sgm", left, right, 20, keep_volume="fixed", backend="torch")
+    assert "aggregate_fixed" not in elsewhere.extras and torch.equal(elsewhere.cost_volume, agg)
+    with pytest.raises(ValueError, match="keep_volume: expected a bool or 'fixed'"):
+        matchers.match("sgm", left, right, 20, keep_volume="int16")
 
 
 # (B, F, H, W, max_disp): W < D, one feature, F not a multiple of a vector, several images
