@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from data_gen.pair import check_render_args, pair_name, render_pair
-from data_gen.scene import MAX_DIFFICULTY, check_probability
+from data_gen.scene import MAX_DIFFICULTY, check_probability, check_textures
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +107,7 @@ def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int 
     check_render_args(seed, 0, difficulty, height, width, supersample, render_options.get("max_disp"),
                       render_options.get("baseline"), render_options.get("num_objects"))
     check_probability(render_options.get("shared_material", 0.0), "shared_material")
+    textures = check_textures(render_options.get("textures"))
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is an existing file; expected a folder (new or existing)")
@@ -116,7 +117,8 @@ def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int 
         raise ValueError(f"out: cannot create the folder {out} ({e.strerror or e})") from None
     folders = []
     for index in tqdm(range(count), desc="data_gen", unit="pair", disable=not progress):
-        name = pair_name(seed, index, difficulty, rectified, render_options.get("shared_material", 0.0))
+        name = pair_name(seed, index, difficulty, rectified, render_options.get("shared_material", 0.0),
+                         textures)
         final = out / name
         folders.append(final)
         if final.is_dir():

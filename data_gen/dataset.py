@@ -8,7 +8,7 @@ import torch
 from torch.utils.data import Dataset
 
 from data_gen.pair import check_render_args, render_pair
-from data_gen.scene import check_probability
+from data_gen.scene import check_probability, check_textures
 
 ITEM_TENSOR_KEYS = ("left", "right", "disparity", "disparity_right", "valid", "valid_right", "occlusion", "depth",
                     "specular", "correspondence")
@@ -27,7 +27,7 @@ class SyntheticStereo(Dataset):
         count: number of pairs (>= 1); seed: dataset seed; difficulty, height, width, rectified, supersample:
             as :func:`data_gen.render_pair`; ``**render_options``: its keyword-only options (num_objects,
             max_disp, baseline, distortion, noise, photometric, blur, specular, occlusion_right,
-            shared_material).
+            shared_material, textures).
     """
 
     def __init__(self, count: int, seed: int = 0, difficulty: int = 2, height: int = 256, width: int = 512,
@@ -35,11 +35,14 @@ class SyntheticStereo(Dataset):
         if isinstance(count, bool) or not isinstance(count, int) or count < 1:
             raise ValueError(f"count: expected an integer >= 1, got {count!r}")
         unknown = set(render_options) - {"num_objects", "max_disp", "baseline", "distortion", "noise",
-                                         "photometric", "blur", "specular", "occlusion_right", "shared_material"}
+                                         "photometric", "blur", "specular", "occlusion_right", "shared_material",
+                                         "textures"}
         if unknown:
             raise TypeError(f"render_options: unknown option(s) {sorted(unknown)}")
         if "shared_material" in render_options:
             check_probability(render_options["shared_material"], "shared_material")
+        if "textures" in render_options:
+            render_options = {**render_options, "textures": check_textures(render_options["textures"])}
         _, _, difficulty, height, width, supersample, max_disp = check_render_args(
             seed, 0, difficulty, height, width, supersample, render_options.get("max_disp"),
             render_options.get("baseline"), render_options.get("num_objects"))

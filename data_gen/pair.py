@@ -17,6 +17,7 @@ from data_gen.scene import (
     Scene,
     check_difficulty,
     check_probability,
+    check_textures,
     default_max_disp,
     sample_rig,
     sample_scene,
@@ -212,17 +213,22 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_rig
     return out
 
 
-def pair_name(seed: int, index: int, difficulty: int, rectified: bool, shared_material: float = 0.0) -> str:
+def pair_name(seed: int, index: int, difficulty: int, rectified: bool, shared_material: float = 0.0,
+              textures: dict[str, float] | None = None) -> str:
     """The name of a rendered pair (``name`` of :func:`render_pair`; the CLI's folder names)."""
     kind = "rect" if rectified else "unrect"
-    return f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}" + (f"_m{shared_material:g}" if shared_material else "")
+    name = f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}" + (f"_m{shared_material:g}" if shared_material else "")
+    if textures:
+        name += "_t" + "-".join(f"{k}{w:g}" for k, w in sorted(textures.items()) if w > 0)
+    return name
 
 
 def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, width: int = 512,
                 rectified: bool = True, supersample: int = 2, *, num_objects: int | None = None,
                 max_disp: int | None = None, baseline: float | None = None, distortion: bool | None = None,
                 noise: bool = True, photometric: bool = True, blur: bool = True, specular: bool = True,
-                occlusion_right: bool = False, shared_material: float = 0.0) -> dict:
+                occlusion_right: bool = False, shared_material: float = 0.0,
+                textures: dict[str, float] | None = None) -> dict:
     """Render one synthetic stereo pair with exact ground truth; a pure function of its arguments.
 
     Args:
@@ -240,6 +246,8 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
             (:func:`data_gen.scene.share_materials`: depth edges without a colour edge, as in photos). Drawn from a
             stream of its own, so the geometry, lights and camera responses are those of the same pair at 0
             (the default, which draws nothing).
+        textures: ``{kind: weight}`` over :data:`data_gen.textures.TEXTURE_KINDS` instead of the difficulty's
+            texture mix (e.g. without ``weak`` and ``flat``: every surface textured); None = the difficulty's.
 
     Returns:
         dict with ``left``, ``right`` float32 :math:`(3, H, W)` in [0, 1]; ``disparity``, ``disparity_right``,
@@ -256,17 +264,19 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
     seed, index, difficulty, height, width, supersample, max_disp = check_render_args(
         seed, index, difficulty, height, width, supersample, max_disp, baseline, num_objects)
     shared_material = check_probability(shared_material, "shared_material")
+    textures = check_textures(textures)
     with single_thread():
         return _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp,
                             baseline, distortion, noise, photometric, blur, specular, occlusion_right,
-                            shared_material)
+                            shared_material, textures)
 
 
 def _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp, baseline,
-                 distortion, noise, photometric, blur, specular, occlusion_right, shared_material) -> dict:
+                 distortion, noise, photometric, blur, specular, occlusion_right, shared_material,
+                 textures=None) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
     rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
-    scene = sample_scene(rng, difficulty, rig, max_disp, num_objects)
+    scene = sample_scene(rng, difficulty, rig, max_disp, num_objects, textures)
     level = DIFFICULTY[difficulty]
     response = [_photometric(rng, level), _photometric(rng, level)]
     if shared_material > 0:  # a stream of its own: everything above is the same pair as without it
@@ -283,7 +293,7 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
     if not specular:
         gt["specular"].zero_()
     out = dict(left=images[0], right=images[1], calib=calibration_of(rig, max_disp), max_disp=max_disp,
-               name=pair_name(seed, index, difficulty, rectified, shared_material), difficulty=difficulty, scene=scene,
+               name=pair_name(seed, index, difficulty, rectified, shared_material, textures), difficulty=difficulty, scene=scene,
                rig=rig)
     out.update(gt)
     return out

@@ -67,6 +67,28 @@ def check_probability(value: object, name: str) -> float:
     return float(value)
 
 
+def check_textures(textures: object) -> dict[str, float] | None:
+    """``textures`` (a render option): None (the difficulty's mix) or ``{kind: weight}`` over
+    :data:`~data_gen.textures.TEXTURE_KINDS`, weights finite and >= 0, at least one > 0; returned as a plain
+    dict of floats. Anything else is a ValueError naming the option."""
+    from data_gen.textures import TEXTURE_KINDS
+
+    if textures is None:
+        return None
+    expected = f"expected None or a dict {{kind: weight}} over {TEXTURE_KINDS} with weights >= 0, not all 0"
+    if not isinstance(textures, dict) or not textures:
+        raise ValueError(f"textures: {expected}, got {textures!r}")
+    out = {}
+    for kind, weight in textures.items():
+        if kind not in TEXTURE_KINDS or isinstance(weight, bool) or not isinstance(weight, int | float) \
+                or not math.isfinite(weight) or weight < 0:
+            raise ValueError(f"textures: {expected}, got {textures!r}")
+        out[kind] = float(weight)
+    if sum(out.values()) <= 0:
+        raise ValueError(f"textures: {expected}, got {textures!r}")
+    return out
+
+
 def default_max_disp(difficulty: int, width: int) -> int:
     """Disparity range of a difficulty level, scaled with the image width and kept below ``width / 2``."""
     d = DIFFICULTY[check_difficulty(difficulty)]["max_disp"] * width / REFERENCE_WIDTH
@@ -409,7 +431,7 @@ def share_materials(scene: Scene, rng: np.random.Generator, probability: float) 
 
 
 def sample_scene(rng: np.random.Generator, difficulty: int, rig: Rig, max_disp: int,
-                 num_objects: int | None = None) -> Scene:
+                 num_objects: int | None = None, textures: dict[str, float] | None = None) -> Scene:
     """A random scene for ``rig``: background walls plus objects, all disparities in ``(0, max_disp]``.
 
     Both cameras are bounded: every object's bounding sphere has depth ``z_cam >= f_cam B / max_disp`` in each
@@ -421,8 +443,14 @@ def sample_scene(rng: np.random.Generator, difficulty: int, rig: Rig, max_disp: 
         difficulty: 0..MAX_DIFFICULTY (see ``DIFFICULTY``).
         rig: from :func:`sample_rig`; max_disp: disparity bound in pixels (left camera).
         num_objects: objects in front of the background (default: random in the level's range), >= 1.
+        textures: ``{kind: weight}`` instead of the level's texture mix (:func:`check_textures`; None = the
+            level's). Every other choice is the level's; the random stream differs once a kind that draws more
+            (``weak``'s contrast) is chosen differently.
     """
     level = DIFFICULTY[check_difficulty(difficulty)]
+    textures = check_textures(textures)
+    if textures is not None:
+        level = {**level, "textures": textures}
     if num_objects is None:
         num_objects = int(rng.integers(level["objects"][0], level["objects"][1] + 1))
     elif isinstance(num_objects, bool) or not isinstance(num_objects, int | np.integer) or num_objects < 1:

@@ -16,13 +16,20 @@ chooser's class prior) ``val2o``/``val4o`` on seeds 5184/5185 (its prior-correct
 depth-edge Siamese run), ``val2q``/``val4q`` on seeds 5188/5189 (graphcut pruning with sgm's proposals), ``val2r``/``val4r`` on seeds
 5190/5191 (the depth-edge run of the shipped Siamese recipe), ``val2s``/``val4s`` on seeds 5192/5193 (graphcut's
 lighter pruning), ``val2t``/``val4t`` on seeds 5194/5195 (the depth-edge run at share 0.25), ``val2u``/``val4u`` on seeds 5196/5197 (the
-twenty-ninth session's added depth-edge samples); any other spec as
+twenty-ninth session's added depth-edge samples), ``tex2``/``tex4`` (12 / 8 pairs, seeds 5198/5199, difficulty 2 / 4 with
+every surface textured: the level's texture mix without ``weak`` and ``flat``; its textured-interior diagnostic); any
+other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
 
 import data_gen
+from data_gen.scene import DIFFICULTY
 from stereonet.data import _SyntheticItems, load_dataset
+
+TEXTURED = {level: {k: w for k, w in DIFFICULTY[level]["textures"].items() if k not in ("weak", "flat")}
+            for level in range(len(DIFFICULTY))}
+"""Each difficulty's texture mix without the kinds chosen for their lack of texture."""
 
 SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "val4b": (8, 5153, 4),
         "val2c": (12, 5154, 2), "val4c": (8, 5155, 4), "val2d": (12, 5156, 2), "val4d": (8, 5157, 4),
@@ -38,7 +45,8 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2q": (12, 5188, 2), "val4q": (8, 5189, 4), "val2r": (12, 5190, 2), "val4r": (8, 5191, 4),
         "val2s": (12, 5192, 2), "val4s": (8, 5193, 4),
         "val2t": (12, 5194, 2), "val4t": (8, 5195, 4),
-        "val2u": (12, 5196, 2), "val4u": (8, 5197, 4)}
+        "val2u": (12, 5196, 2), "val4u": (8, 5197, 4),
+        "tex2": (12, 5198, 2, {"textures": TEXTURED[2]}), "tex4": (8, 5199, 4, {"textures": TEXTURED[4]})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

@@ -176,6 +176,10 @@ def test_dataset_workers_match_and_collate():
     (dict(supersample=0), "supersample"),
     (dict(shared_material=1.5), "shared_material"),
     (dict(shared_material="often"), "shared_material"),
+    (dict(textures={"marble": 1.0}), "textures"),
+    (dict(textures={"bank": -1.0}), "textures"),
+    (dict(textures={"bank": 0.0}), "textures"),
+    (dict(textures=["bank"]), "textures"),
 ])
 def test_bad_input_names_the_parameter(kwargs, param):
     args = dict(seed=0, index=0, height=H, width=W)
@@ -325,3 +329,30 @@ def test_ground_truth_marks_unrepresentable_disparities_invalid():
     assert on_ball.any() and not gt["valid"][0][on_ball].any()
     assert gt["valid"][0][~on_ball].all() and float(gt["disparity"].max()) <= 20
     assert float(gt["disparity_right"][gt["valid_right"]].max()) <= 20
+
+
+def test_textures_option_replaces_the_levels_mix():
+    """``textures={kind: weight}`` draws every surface's kind from that mix (here: textured kinds only, as opposed
+    to difficulty 4's weak and flat surfaces); None is the level's mix, the same pair as without the option; the
+    option is in the pair's name, and SyntheticStereo passes it on."""
+    from data_gen.scene import sample_scene
+
+    textured = {"bank": 0.5, "bank_mix": 0.5}
+    kinds, default_kinds = set(), set()
+    for index in range(6):
+        rng = np.random.default_rng(index)
+        rig = data_gen.sample_rig(rng, H, W)
+        state = rng.bit_generator.state
+        scene = sample_scene(rng, 4, rig, 32, textures=textured)
+        kinds |= {obj.material.kind for obj in scene.objects}
+        rng.bit_generator.state = state
+        default_kinds |= {obj.material.kind for obj in sample_scene(rng, 4, rig, 32).objects}
+    assert kinds <= set(textured) and len(kinds) == 2
+    assert default_kinds - set(textured)  # the level's own mix has other kinds on these scenes
+    plain = data_gen.render_pair(3, 1, 2, height=H, width=W)
+    same = data_gen.render_pair(3, 1, 2, height=H, width=W, textures=None)
+    assert torch.equal(plain["left"], same["left"]) and plain["name"] == same["name"]
+    tex = data_gen.render_pair(3, 1, 2, height=H, width=W, textures=textured)
+    assert tex["name"] == plain["name"] + "_tbank0.5-bank_mix0.5"
+    item = data_gen.SyntheticStereo(2, seed=3, difficulty=2, height=H, width=W, textures=textured)[1]
+    assert item["name"] == tex["name"] and torch.equal(item["left"], tex["left"])
