@@ -8,7 +8,6 @@ standard sets (prior2 + prior4), whole sets compared (the items do not say which
 """
 import sys
 
-import torch
 from val_sets import load
 
 from stereonet.matchers.learned import load_network, refine_bases
