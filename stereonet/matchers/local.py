@@ -335,7 +335,10 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
             del vols
             selection, confidence = select_disparity_confidence_fixed(
                 accs, s, back.pop("subpixel"), back.pop("uniqueness"), back.pop("lr_tol"), left.dtype, left.device)
-            fixed = torch.stack([torch.from_numpy(a) for a in accs]).permute(0, 3, 1, 2) if fixed_volume else None
+            fixed = None
+            if fixed_volume:  # one item: a view of the kernel's array, no copy
+                fixed = (torch.from_numpy(accs[0])[None] if len(accs) == 1
+                         else torch.stack([torch.from_numpy(a) for a in accs])).permute(0, 3, 1, 2)
             del accs
             out = _filter(selection, None, **back)
             out.confidence = confidence * out.valid.to(confidence.dtype)

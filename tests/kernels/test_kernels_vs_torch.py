@@ -242,6 +242,8 @@ def test_registered_sgm_fast_path_equals_public_composition():
     assert fixed.cost_volume is None and acc.dtype == torch.int16 and acc.shape == agg.shape
     assert torch.equal(acc.float() / scale.float(), agg)
     assert torch.equal(fixed.disparity, out.disparity) and torch.equal(fixed.valid, out.valid)
+    one = matchers.match("sgm", left[:1], right[:1], 20, keep_volume="fixed")  # one item: a view, no copy
+    assert torch.equal(one.extras["aggregate_fixed"].float() / one.extras["aggregate_scale"].float(), agg[:1])
     elsewhere = matchers.match("sgm", left, right, 20, keep_volume="fixed", backend="torch")
     assert "aggregate_fixed" not in elsewhere.extras and torch.equal(elsewhere.cost_volume, agg)
     with pytest.raises(ValueError, match="keep_volume: expected a bool or 'fixed'"):
