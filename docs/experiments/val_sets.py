@@ -17,8 +17,9 @@ depth-edge Siamese run), ``val2q``/``val4q`` on seeds 5188/5189 (graphcut prunin
 5190/5191 (the depth-edge run of the shipped Siamese recipe), ``val2s``/``val4s`` on seeds 5192/5193 (graphcut's
 lighter pruning), ``val2t``/``val4t`` on seeds 5194/5195 (the depth-edge run at share 0.25), ``val2u``/``val4u`` on seeds 5196/5197 (the
 twenty-ninth session's added depth-edge samples), ``tex2``/``tex4`` (12 / 8 pairs, seeds 5198/5199, difficulty 2 / 4 with
-every surface textured: the level's texture mix without ``weak`` and ``flat``; its textured-interior diagnostic); any
-other spec as
+every surface textured: the level's texture mix without ``weak`` and ``flat``; its textured-interior diagnostic),
+``val2v``/``val4v`` on seeds 5200/5201 and ``tex2v``/``tex4v`` (textured as tex2/tex4) on seeds 5202/5203 (its
+textured-training run); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -46,7 +47,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2s": (12, 5192, 2), "val4s": (8, 5193, 4),
         "val2t": (12, 5194, 2), "val4t": (8, 5195, 4),
         "val2u": (12, 5196, 2), "val4u": (8, 5197, 4),
-        "tex2": (12, 5198, 2, {"textures": TEXTURED[2]}), "tex4": (8, 5199, 4, {"textures": TEXTURED[4]})}
+        "tex2": (12, 5198, 2, {"textures": TEXTURED[2]}), "tex4": (8, 5199, 4, {"textures": TEXTURED[4]}),
+        "val2v": (12, 5200, 2), "val4v": (8, 5201, 4),
+        "tex2v": (12, 5202, 2, {"textures": TEXTURED[2]}), "tex4v": (8, 5203, 4, {"textures": TEXTURED[4]})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

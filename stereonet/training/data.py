@@ -59,7 +59,8 @@ class RandomShiftStereo(Dataset):
 
 
 def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: int, width: int,
-                  supersample: int = 2, max_disp: int | None = None, shared_material: float = 0.0) -> Dataset:
+                  supersample: int = 2, max_disp: int | None = None, shared_material: float = 0.0,
+                  drop_textures: tuple[str, ...] = ()) -> Dataset:
     if source == "random-shift":
         return RandomShiftStereo(count, seed=seed, height=height, width=width, max_disp=max(1, width // 8))
     if source == "data_gen":
@@ -68,6 +69,11 @@ def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: i
         except ImportError as e:  # pragma: no cover - data_gen ships with stereonet
             raise ImportError("source: 'data_gen' needs the data_gen package (pip install -e .)") from e
         options = {"shared_material": float(shared_material)}  # 0: the same pairs as before the option existed
+        if drop_textures:  # the level's texture mix without these kinds (none dropped: the option is not passed)
+            from data_gen.scene import DIFFICULTY
+
+            options["textures"] = {k: w for k, w in DIFFICULTY[difficulty]["textures"].items()
+                                   if k not in drop_textures}
         if max_disp is not None:
             options["max_disp"] = int(max_disp)
         return data_gen.SyntheticStereo(count, seed=seed, difficulty=difficulty, height=height, width=width,
@@ -244,9 +250,10 @@ class PooledCurriculumStream(IterableDataset):
                  augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None,
                  rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0,
                  extra: Dataset | None = None, extra_ratio: float = 0.0, vertical_warp: float = 0.0,
-                 shared_material: float = 0.0) -> None:
+                 shared_material: float = 0.0, drop_textures: tuple[str, ...] = ()) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
         self.shared_material = float(shared_material)
+        self.drop_textures = tuple(drop_textures)
         self.extra, self.extra_ratio = extra, float(extra_ratio) if extra is not None else 0.0
         self.vertical_jitter, self.vertical_warp = float(vertical_jitter), float(vertical_warp)
         self.supersample, self.disparity_range = supersample, disparity_range
@@ -269,7 +276,7 @@ class PooledCurriculumStream(IterableDataset):
                 level = int(self.difficulty.value)
                 max_disp = sample_max_disp(self.source, level, self.width, self.disparity_range, g)
                 ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height, self.width,
-                                   self.supersample, max_disp, self.shared_material)
+                                   self.supersample, max_disp, self.shared_material, self.drop_textures)
                 pool.append(ds[index])
                 pool = pool[-self.pool_size:]
             counter += 1
@@ -351,6 +358,9 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         shared_material: probability that an object of a rendered training pair takes the look of another
             surface of its scene (``data_gen.render_pair``'s option: depth edges without a colour edge, as in
             photos; 0 = off, the default). Validation pairs are rendered without it.
+        drop_textures: texture kinds (``data_gen.textures.TEXTURE_KINDS``) left out of every level's mix in the
+            rendered training pairs, e.g. ``[weak, flat]``: every training surface textured (data_gen's ``textures``
+            option). Validation pairs keep the levels' mixes. Empty (the default): the same pairs as before.
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
@@ -360,10 +370,21 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  augment: bool = True, supersample: int = 2, disparity_range: int | None = None,
                  vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0, train: str | None = None,
                  train_ratio: float = 0.5, vertical_warp: float = 0.0, val_vertical_warp: float = 0.0,
-                 shared_material: float = 0.0) -> None:
+                 shared_material: float = 0.0, drop_textures: list[str] | None = None) -> None:
         super().__init__()
         self.save_hyperparameters()
         from stereonet.checks import StereoInputError
+
+        if drop_textures:
+            from data_gen.scene import DIFFICULTY
+            from data_gen.textures import TEXTURE_KINDS
+
+            bad = [k for k in drop_textures if k not in TEXTURE_KINDS]
+            if bad or not isinstance(drop_textures, list | tuple) or \
+                    any(not set(level["textures"]) - set(drop_textures) for level in DIFFICULTY):
+                raise StereoInputError(f"--data.drop_textures: expected texture kinds out of {TEXTURE_KINDS} that "
+                                       f"leave every level a kind to draw, got {drop_textures!r}")
+        self.drop_textures = tuple(drop_textures or ())
 
         if isinstance(shared_material, bool) or not isinstance(shared_material, int | float) \
                 or not 0.0 <= shared_material <= 1.0:
@@ -416,7 +437,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                         hp.disparity_range, rank=rank, world_size=world,
                                         vertical_jitter=hp.vertical_jitter, extra=self.train_extra,
                                         extra_ratio=hp.train_ratio, vertical_warp=hp.vertical_warp,
-                                        shared_material=hp.shared_material)
+                                        shared_material=hp.shared_material, drop_textures=self.drop_textures)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

@@ -531,6 +531,44 @@ def test_shared_material_reaches_the_rendered_training_pairs_only():
         SyntheticStereoDataModule(source="data_gen", shared_material=2.0)
 
 
+def test_drop_textures_reaches_the_rendered_training_pairs_only(monkeypatch):
+    """``--data.drop_textures``: training pairs are rendered without those texture kinds (data_gen's ``textures``
+    option: the level's mix less those kinds), validation pairs with the levels' mixes; an unknown kind, or one that
+    would leave a level nothing to draw, is a one-line error naming the option."""
+    import data_gen
+    from data_gen.scene import DIFFICULTY
+    from stereonet.checks import StereoInputError
+    from stereonet.training.data import SyntheticStereoDataModule
+
+    seen = []
+    real = data_gen.SyntheticStereo
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("textures"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(data_gen, "SyntheticStereo", spy)
+
+    def first(drop):
+        seen.clear()
+        dm = SyntheticStereoDataModule(source="data_gen", height=48, width=96, batch_size=1, pool_size=1, reuse=1,
+                                       val_pairs=1, supersample=1, augment=False, drop_textures=drop)
+        dm.setup("fit")
+        dm.set_progress(1.0)
+        batch = next(iter(dm.train_dataloader()))
+        return batch, dm.val_items[0], list(seen)
+
+    plain, val_plain, seen_plain = first(None)
+    textured, val_textured, seen_textured = first(["weak", "flat"])
+    assert seen_plain == [None, None]  # validation, then the first training pair: the levels' own mixes
+    level4 = {k: w for k, w in DIFFICULTY[4]["textures"].items() if k not in ("weak", "flat")}
+    assert seen_textured == [None, level4]  # progress 1: difficulty 4, without weak and flat
+    torch.testing.assert_close(val_textured["left"], val_plain["left"])
+    for bad in (["marble"], ["bank", "bank_mix"]):  # difficulty 0 draws only bank and bank_mix
+        with pytest.raises(StereoInputError, match="--data.drop_textures"):
+            SyntheticStereoDataModule(source="data_gen", drop_textures=bad)
+
+
 def test_validation_jitter_is_fixed_per_pair_and_leaves_ground_truth_alone():
     from stereonet.training.data import SyntheticStereoDataModule
 
