@@ -379,8 +379,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             from data_gen.scene import DIFFICULTY
             from data_gen.textures import TEXTURE_KINDS
 
-            bad = [k for k in drop_textures if k not in TEXTURE_KINDS]
-            if bad or not isinstance(drop_textures, list | tuple) or \
+            if not isinstance(drop_textures, list | tuple) or any(k not in TEXTURE_KINDS for k in drop_textures) or \
                     any(not set(level["textures"]) - set(drop_textures) for level in DIFFICULTY):
                 raise StereoInputError(f"--data.drop_textures: expected texture kinds out of {TEXTURE_KINDS} that "
                                        f"leave every level a kind to draw, got {drop_textures!r}")

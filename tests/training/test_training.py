@@ -564,7 +564,7 @@ def test_drop_textures_reaches_the_rendered_training_pairs_only(monkeypatch):
     level4 = {k: w for k, w in DIFFICULTY[4]["textures"].items() if k not in ("weak", "flat")}
     assert seen_textured == [None, level4]  # progress 1: difficulty 4, without weak and flat
     torch.testing.assert_close(val_textured["left"], val_plain["left"])
-    for bad in (["marble"], ["bank", "bank_mix"]):  # difficulty 0 draws only bank and bank_mix
+    for bad in (["marble"], ["bank", "bank_mix"], 3):  # difficulty 0 draws only bank and bank_mix
         with pytest.raises(StereoInputError, match="--data.drop_textures"):
             SyntheticStereoDataModule(source="data_gen", drop_textures=bad)
 
