@@ -17,7 +17,7 @@ from val_sets import load  # noqa: E402
 
 from stereonet import matchers  # noqa: E402
 from stereonet.evaluation import _batch, apply_fill, expand_data_specs  # noqa: E402
-from stereonet.metrics import depth_discontinuities  # noqa: E402
+from stereonet.metrics import bad_pixel_rate, depth_discontinuities  # noqa: E402
 
 methods = [matchers.register_checkpoint_variant(arg) for arg in sys.argv[1].split(",")]
 specs = [s for spec in sys.argv[2].split(";") for s in (expand_data_specs(spec) if spec == "real" else [spec])]
@@ -35,11 +35,10 @@ for spec in specs:
             with torch.no_grad():
                 out = apply_fill(matchers.match(m, _batch(item["left"]).float(), _batch(item["right"]).float(),
                                                 int(item["max_disp"])))
-            bad = ((out.disparity - gt).abs() > 2.0) | ~out.valid
             r = rows.setdefault((m, spec), {"near": [], "far": [], "share": [], "all": []})
             for region, mask in (("near", near), ("far", far), ("all", gv)):
                 if bool(mask.any()):
-                    r[region].append(100.0 * float((bad & mask).sum()) / float(mask.sum()))
+                    r[region].append(bad_pixel_rate(out.disparity, gt, gv, 2.0, out.valid, mask))
             r["share"].append(100.0 * float(near.sum()) / max(1.0, float(gv.sum())))
 print(f"bad-2 after fill, mean over pairs; near = within {radius} px of a depth edge")
 print("| method | set | pairs | near-edge share of pixels | bad-2 near | bad-2 far | bad-2 all |")
