@@ -89,6 +89,12 @@ def check_textures(textures: object) -> dict[str, float] | None:
     return out
 
 
+def texture_mix(difficulty: int, without: tuple[str, ...] | list[str] = ()) -> dict[str, float]:
+    """The texture mix of a difficulty level less the kinds in ``without`` (a value for the ``textures`` render
+    option; e.g. ``without=("weak", "flat")``: every surface textured)."""
+    return {k: w for k, w in DIFFICULTY[check_difficulty(difficulty)]["textures"].items() if k not in without}
+
+
 def default_max_disp(difficulty: int, width: int) -> int:
     """Disparity range of a difficulty level, scaled with the image width and kept below ``width / 2``."""
     d = DIFFICULTY[check_difficulty(difficulty)]["max_disp"] * width / REFERENCE_WIDTH

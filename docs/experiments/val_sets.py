@@ -25,11 +25,10 @@ runs named variants of a matcher on them and prints the table and each pair's ba
 import functools
 
 import data_gen
-from data_gen.scene import DIFFICULTY
+from data_gen.scene import MAX_DIFFICULTY, texture_mix
 from stereonet.data import _SyntheticItems, load_dataset
 
-TEXTURED = {level: {k: w for k, w in DIFFICULTY[level]["textures"].items() if k not in ("weak", "flat")}
-            for level in range(len(DIFFICULTY))}
+TEXTURED = {level: texture_mix(level, ("weak", "flat")) for level in range(MAX_DIFFICULTY + 1)}
 """Each difficulty's texture mix without the kinds chosen for their lack of texture."""
 
 SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "val4b": (8, 5153, 4),

@@ -70,10 +70,9 @@ def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: i
             raise ImportError("source: 'data_gen' needs the data_gen package (pip install -e .)") from e
         options = {"shared_material": float(shared_material)}  # 0: the same pairs as before the option existed
         if drop_textures:  # the level's texture mix without these kinds (none dropped: the option is not passed)
-            from data_gen.scene import DIFFICULTY
+            from data_gen.scene import texture_mix
 
-            options["textures"] = {k: w for k, w in DIFFICULTY[difficulty]["textures"].items()
-                                   if k not in drop_textures}
+            options["textures"] = texture_mix(difficulty, drop_textures)
         if max_disp is not None:
             options["max_disp"] = int(max_disp)
         return data_gen.SyntheticStereo(count, seed=seed, difficulty=difficulty, height=height, width=width,
@@ -376,11 +375,11 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         from stereonet.checks import StereoInputError
 
         if drop_textures:
-            from data_gen.scene import DIFFICULTY
+            from data_gen.scene import MAX_DIFFICULTY, texture_mix
             from data_gen.textures import TEXTURE_KINDS
 
             if not isinstance(drop_textures, list | tuple) or any(k not in TEXTURE_KINDS for k in drop_textures) or \
-                    any(not set(level["textures"]) - set(drop_textures) for level in DIFFICULTY):
+                    not all(texture_mix(level, drop_textures) for level in range(MAX_DIFFICULTY + 1)):
                 raise StereoInputError(f"--data.drop_textures: expected texture kinds out of {TEXTURE_KINDS} that "
                                        f"leave every level a kind to draw, got {drop_textures!r}")
         self.drop_textures = tuple(drop_textures or ())
