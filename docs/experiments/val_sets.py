@@ -19,7 +19,8 @@ lighter pruning), ``val2t``/``val4t`` on seeds 5194/5195 (the depth-edge run at 
 twenty-ninth session's added depth-edge samples), ``tex2``/``tex4`` (12 / 8 pairs, seeds 5198/5199, difficulty 2 / 4 with
 every surface textured: the level's texture mix without ``weak`` and ``flat``; its textured-interior diagnostic),
 ``val2v``/``val4v`` on seeds 5200/5201 and ``tex2v``/``tex4v`` (textured as tex2/tex4) on seeds 5202/5203 (its
-textured-training run); any other spec as
+textured-training run), ``val2w``/``val4w`` on seeds 5204/5205 (the thirtieth session's width-16 tower for
+speed); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -48,7 +49,8 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2u": (12, 5196, 2), "val4u": (8, 5197, 4),
         "tex2": (12, 5198, 2, {"textures": TEXTURED[2]}), "tex4": (8, 5199, 4, {"textures": TEXTURED[4]}),
         "val2v": (12, 5200, 2), "val4v": (8, 5201, 4),
-        "tex2v": (12, 5202, 2, {"textures": TEXTURED[2]}), "tex4v": (8, 5203, 4, {"textures": TEXTURED[4]})}
+        "tex2v": (12, 5202, 2, {"textures": TEXTURED[2]}), "tex4v": (8, 5203, 4, {"textures": TEXTURED[4]}),
+        "val2w": (12, 5204, 2), "val4w": (8, 5205, 4)}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
