@@ -186,6 +186,20 @@ def sweep_state_i16(G: int, W: int, D: int) -> tuple[np.ndarray, np.ndarray]:
     return np.full((G * 3 * W, D + 2), _I16_SENTINEL, np.int16), np.empty(G * 3 * W, np.int16)
 
 
+@numba.njit(fastmath=False, inline="always")
+def _add4(s_row, o0, o1, o2, o3, assign):
+    """``s_row (+)= o0 + o1 + o2 + o3`` over the padded path rows' disparities (index ``d + 1``). Every path
+    cost is non-negative and every partial sum is at most the full sum, which the caller's bound keeps in
+    int16, so the order of these integer additions does not change a bit."""
+    D = s_row.shape[0]
+    if assign:
+        for d in range(D):
+            s_row[d] = np.int16(np.int16(o0[d + 1] + o1[d + 1]) + np.int16(o2[d + 1] + o3[d + 1]))
+    else:
+        for d in range(D):
+            s_row[d] = np.int16(s_row[d] + np.int16(np.int16(o0[d + 1] + o1[d + 1]) + np.int16(o2[d + 1] + o3[d + 1])))
+
+
 @numba.njit(fastmath=False, nogil=True, cache=True)
 def _sweep_i16(C, S, scale, P1, p2, dirs, downward, assign, L, M, step0, step1):
     """Steps ``step0 .. step1 - 1`` of :func:`_sweep` in 16-bit fixed point (step = row index top-down, or
@@ -232,12 +246,16 @@ def _sweep_i16(C, S, scale, P1, p2, dirs, downward, assign, L, M, step0, step1):
                         out[d + 1] = cs[d]
                         mi = _min(mi, cs[d])
                 M[o] = mi
-                if assign and g == 0:
-                    for d in range(D):
-                        s_row[d] = out[d + 1]
-                else:
-                    for d in range(D):
-                        s_row[d] += out[d + 1]
+                if G != 4:
+                    if assign and g == 0:
+                        for d in range(D):
+                            s_row[d] = out[d + 1]
+                    else:
+                        for d in range(D):
+                            s_row[d] += out[d + 1]
+            if G == 4:  # 8 paths: the sweep's four path costs added in one pass (s_row read and written once)
+                _add4(s_row, L[out_base[0] + x], L[out_base[1] + x], L[out_base[2] + x], L[out_base[3] + x],
+                      assign)
 
 
 def grid_scale(penalty_step: float | None) -> int | None:

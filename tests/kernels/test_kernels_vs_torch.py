@@ -110,18 +110,23 @@ def test_sgm_fixed_point_falls_back_when_not_exact():
 
 @pytest.mark.parametrize("h", [1, 2, 3, 5, 17, 40])
 @pytest.mark.parametrize("chunk", [1, 3, 16])
-def test_fixed_point_concurrent_sweeps_share_one_buffer_exactly(h, chunk, monkeypatch):
+@pytest.mark.parametrize("paths", [8, 16])
+def test_fixed_point_concurrent_sweeps_share_one_buffer_exactly(h, chunk, paths, monkeypatch):
     """The two sweeps on two threads into one int16 buffer (rows handed over in the middle, in chunks)
-    give the one-thread result bit for bit, for odd/even heights, chunks of 1 row up to more than half."""
+    give the one-thread result bit for bit, for odd/even heights, chunks of 1 row up to more than half, and
+    both equal the float32 kernel: 8 paths (four per sweep, added to the sum in one pass) and 16 (knight
+    moves cross two rows; eight per sweep, added one by one)."""
     import numba
 
+    from stereonet.aggregate.sgm import sgm_directions
     from stereonet.kernels import sgm as kernel
 
     monkeypatch.setattr(kernel, "SWEEP_CHUNK", chunk)
-    rng = np.random.default_rng(h * 31 + chunk)
+    rng = np.random.default_rng(h * 31 + chunk + paths)
     u8 = rng.integers(0, 49, (h, 23, 11)).astype(np.uint8)
-    dirs = np.asarray(DIRECTIONS_16, np.int64)  # 16 paths: knight moves cross two rows
-    p2 = (rng.integers(2 * 16, 30 * 16, (16, h, 23)) / 16).astype(np.float32)
+    dirs = np.asarray(sgm_directions(paths), np.int64)
+    assert paths != 16 or dirs.tolist() == np.asarray(DIRECTIONS_16).tolist()
+    p2 = (rng.integers(2 * 16, 30 * 16, (paths, h, 23)) / 16).astype(np.float32)
     # the branch is chosen by numba's thread count; force each (the concurrent one uses Python threads, so it
     # runs on any machine)
     monkeypatch.setattr(numba, "get_num_threads", lambda: 1)
