@@ -1,19 +1,26 @@
 #!/usr/bin/env bash
-# Train the three learned matchers as the shipped weights were trained, export them to weights/ and plot
-# their curves. Run from the repository root; logs and checkpoints go to lightning_logs/.
-# Times: 58 min for dispnet (its config's max_time), 3819 steps for smd (32 min alone on both cores); the siamese recipe's 29 803 steps took 1 h 37 min
-# alone on both cores (fourteenth session), longer here with one thread beside the other two. All in parallel, one
-# thread each, on a 2-core CPU (the shipped weights were each trained alone; see stereonet/weights/README.md).
+# Train the four learned weight files as the shipped ones were trained, export them to stereonet/weights/ and plot
+# the curves. Run from the repository root; logs and checkpoints go to lightning_logs/.
+# Two phases, because two files are trained on top of others: smd.pt's backbone is dispnet.pt (fixed) and refine.pt
+# reads siamese-census-sgm's maps (siamese.pt, fixed); each reads the file that phase 1 has just exported.
+#   phase 1, in parallel: siamese (29 803 steps, 32 min alone on 2 threads) and dispnet (its config's 58 min cap)
+#   phase 2, in parallel: smd's head (3 819 steps, 21.5 min alone) and sgm-refine (14 000 steps, 38 min alone)
+# One thread each on a 2-core CPU, so each takes longer than alone (the shipped weights were each trained alone; see
+# stereonet/weights/README.md); dispnet stops at its time cap, so its steps depend on the machine.
 set -euo pipefail
 PY=${PYTHON:-.venv/bin/python}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
-"$PY" train.py fit --config configs/siamese.yaml --data.num_workers 1 &
+best() { ls -t "lightning_logs/$1/checkpoints/"best-*.ckpt | head -1; }
+"$PY" train.py fit --config configs/siamese.yaml &
 "$PY" train.py fit --config configs/dispnet.yaml &
-"$PY" train.py fit --config configs/smd.yaml &
 wait
-for name in siamese dispnet smd; do
-  best=$(ls -t lightning_logs/$name/checkpoints/best-*.ckpt | head -1)
-  "$PY" -m stereonet.training.export weights "$best" stereonet/weights/$name.pt
+for name in siamese dispnet; do
+  "$PY" -m stereonet.training.export weights "$(best $name)" stereonet/weights/$name.pt
 done
+"$PY" train.py fit --config configs/smd.yaml &
+"$PY" train.py fit --config configs/sgm-refine.yaml &
+wait
+"$PY" -m stereonet.training.export weights "$(best smd)" stereonet/weights/smd.pt
+"$PY" -m stereonet.training.export weights lightning_logs/sgm-refine/checkpoints/last.ckpt stereonet/weights/refine.pt
 "$PY" -m stereonet.training.export curves stereonet/weights/curves.png \
   siamese=lightning_logs/siamese dispnet=lightning_logs/dispnet smd=lightning_logs/smd
