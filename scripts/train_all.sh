@@ -11,15 +11,15 @@ set -euo pipefail
 PY=${PYTHON:-.venv/bin/python}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 best() { ls -t "lightning_logs/$1/checkpoints/"best-*.ckpt | head -1; }
-"$PY" train.py fit --config configs/siamese.yaml &
-"$PY" train.py fit --config configs/dispnet.yaml &
-wait
+"$PY" train.py fit --config configs/siamese.yaml & a=$!
+"$PY" train.py fit --config configs/dispnet.yaml & b=$!
+wait "$a"; wait "$b"  # each run's own exit status: a failed run stops the script here
 for name in siamese dispnet; do
   "$PY" -m stereonet.training.export weights "$(best $name)" stereonet/weights/$name.pt
 done
-"$PY" train.py fit --config configs/smd.yaml &
-"$PY" train.py fit --config configs/sgm-refine.yaml &
-wait
+"$PY" train.py fit --config configs/smd.yaml & a=$!
+"$PY" train.py fit --config configs/sgm-refine.yaml & b=$!
+wait "$a"; wait "$b"
 "$PY" -m stereonet.training.export weights "$(best smd)" stereonet/weights/smd.pt
 "$PY" -m stereonet.training.export weights lightning_logs/sgm-refine/checkpoints/last.ckpt stereonet/weights/refine.pt
 "$PY" -m stereonet.training.export curves stereonet/weights/curves.png \
