@@ -18,7 +18,7 @@ from torch import nn
 
 from stereonet.models.dispnet import DispNet
 from stereonet.models.penalty import PenaltyNet
-from stereonet.models.refine import RefineNet
+from stereonet.models.refine import RefineNet, first_argmax
 from stereonet.models.siamese import SiameseNet, siamese_cost_volume, siamese_pair_loss
 from stereonet.models.smd import SMDNet
 from stereonet.models.weights import load_weights
@@ -602,7 +602,7 @@ class RefineModule(StereoModule):
             else:
                 log_p = torch.logsumexp(scores.masked_fill(~right_ones, -1e4), 1) - torch.logsumexp(scores, 1)
             loss = -log_p[usable].mean() if bool(usable.any()) else scores.sum() * 0.0
-            pred = candidates.gather(1, scores.argmax(1, keepdim=True))
+            pred = candidates.gather(1, first_argmax(scores))
             oracle = candidates.gather(1, (candidates - gt).abs().argmin(1, keepdim=True))
             extra["oracle_bad2"] = disparity_errors(oracle, gt, gt_valid)["bad2"]
         else:

@@ -310,3 +310,18 @@ def test_census_evidence_adds_one_candidate_plane_and_keeps_the_untrained_choice
         RefineNet(channels=4, dilations=(1,), evidence="census")  # residual mode has no candidates
     with pytest.raises(StereoInputError, match="evidence"):
         RefineNet(**kw, evidence="ncc")
+
+
+@pytest.mark.parametrize("k", [1, 2, 5])
+def test_first_argmax_equals_torch_argmax_with_ties_and_nan(k):
+    """The selection's argmax over candidates (computed along a contiguous axis) gives torch's indices: the
+    first of tied maxima, a NaN as the maximum (the first NaN), for any number of candidates."""
+    from stereonet.models.refine import first_argmax
+
+    g = torch.Generator().manual_seed(k)
+    scores = torch.randint(0, 3, (2, k, 7, 9), generator=g).float()  # many ties
+    scores[0, :, 0, 0] = float("nan")
+    scores[1, k - 1, 1, 1] = float("nan")
+    scores[1, :, 2, 2] = -float("inf")
+    got = first_argmax(scores)
+    assert got.shape == (2, 1, 7, 9) and torch.equal(got, scores.argmax(dim=1, keepdim=True))
