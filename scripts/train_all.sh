@@ -4,7 +4,7 @@
 # Two phases, because two files are trained on top of others: smd.pt's backbone is dispnet.pt (fixed) and refine.pt
 # reads siamese-census-sgm's maps (siamese.pt, fixed); each reads the file that phase 1 has just exported.
 #   phase 1, in parallel: siamese (29 803 steps, 32 min alone on 2 threads) and dispnet (its config's 58 min cap)
-#   phase 2, in parallel: smd's head (3 819 steps, 21.5 min alone) and sgm-refine (14 000 steps, 38 min alone)
+#   phase 2, in parallel: smd's head (3 819 steps, 21.5 min alone) and sgm-refine (14 000 steps, 34 min alone)
 # One thread each on a 2-core CPU, so each takes longer than alone (the shipped weights were each trained alone; see
 # stereonet/weights/README.md); dispnet stops at its time cap, so its steps depend on the machine.
 set -euo pipefail
