@@ -3,7 +3,8 @@ of its cost margin, beside `smd`'s (its own uncertainty) and `sgm`'s margin, in 
 
 ``sgm-lr``: sgm's map and validity unchanged; confidence ``1 / (1 + |d_L(x) - d_R(x - d_L(x))|)`` on its valid pixels,
 0 elsewhere, where ``d_R`` is sgm's right-reference map (sgm on the mirrored, swapped pair) read at the nearest
-pixel, and pixels whose match has no valid right disparity count as disagreeing by the full range. Evaluation only.
+pixel (:func:`stereonet.select.lr_check.left_right_difference`), and pixels whose match has no valid right
+disparity, or falls outside the right image, count as disagreeing by the full range. Evaluation only.
 
     python docs/experiments/lr_confidence_ause.py [real]
 """
@@ -14,20 +15,15 @@ import torch
 from stereonet import matchers
 from stereonet.evaluation import expand_data_specs, format_table, run_evaluation
 from stereonet.matchers import register
+from stereonet.select.lr_check import left_right_difference
 
 
 def sgm_lr(left, right, max_disp, **options):
     out = matchers.match("sgm", left, right, max_disp, **options)
     mirrored = matchers.match("sgm", right.flip(-1), left.flip(-1), max_disp, **options)
-    d_r, v_r = mirrored.disparity.flip(-1), mirrored.valid.flip(-1)
-    d_l = out.disparity
-    w = d_l.shape[-1]
-    xs = torch.arange(w, device=d_l.device).view(1, 1, 1, w).expand_as(d_l)
-    xr = (xs - torch.nan_to_num(d_l, nan=0.0, posinf=0.0).round().long()).clamp(0, w - 1)
-    diff = (d_l - d_r.gather(-1, xr)).abs()
-    diff = torch.where(v_r.gather(-1, xr), diff, torch.full_like(diff, float(max_disp)))
-    conf = torch.where(out.valid, 1.0 / (1.0 + torch.nan_to_num(diff, nan=float(max_disp))), torch.zeros_like(diff))
-    out.confidence = conf
+    d_r = torch.where(mirrored.valid, mirrored.disparity, torch.full_like(mirrored.disparity, float("nan"))).flip(-1)
+    diff = torch.nan_to_num(left_right_difference(out.disparity, d_r), nan=float(max_disp), posinf=float(max_disp))
+    out.confidence = torch.where(out.valid, 1.0 / (1.0 + diff), torch.zeros_like(diff))
     return out
 
 
