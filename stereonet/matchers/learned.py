@@ -308,24 +308,40 @@ def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_optio
     return refine_bases(("sgm",), left, right, max_disp, **sgm_options)
 
 
-def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_options):
+def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, cross: bool = False,
+                 **sgm_options):
     """The maps of the matchers ``bases`` (:data:`stereonet.models.refine.BASES`) as a RefineNet reads them:
     each filled by the shared rule, stacked along the channels as ``(disparity, valid, confidence)``, each
-    :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; the Siamese matchers run with the shipped weights."""
+    :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; the Siamese matchers run with the shipped weights.
+    ``cross``: the SGM-family bases (:data:`~stereonet.models.refine.CROSS_BASES`) also keep their 16-bit
+    aggregated costs, and a fourth tensor, :func:`~stereonet.models.refine.cross_costs` :math:`(B, M M, H, W)`,
+    says how each base's cost rates each base's filled map (``evidence="cross"`` networks)."""
     from stereonet.matchers import get_matcher
-    from stereonet.models.refine import BASES
+    from stereonet.models.refine import BASES, CROSS_BASES, cross_costs
     from stereonet.select.fill import fill_occlusions
 
-    maps, valids, confidences = [], [], []
+    maps, valids, confidences, aggregates = [], [], [], []
     for name in bases:
         if name not in BASES:
             raise StereoInputError(f"bases: unknown base matcher {name!r}; expected one of {', '.join(BASES)}")
-        out = get_matcher(name, **(sgm_options if name == "sgm" else {}))(left, right, max_disp)
+        if cross and name not in CROSS_BASES:
+            raise StereoInputError(f"bases: cross costs need SGM-family bases ({', '.join(CROSS_BASES)}), got {name!r}")
+        options = dict(sgm_options if name == "sgm" else {}, **({"keep_volume": "fixed"} if cross else {}))
+        out = get_matcher(name, **options)(left, right, max_disp)
         confidence = out.confidence if out.confidence is not None else out.valid.to(left.dtype)
         maps.append(fill_occlusions(out.disparity, out.valid))
         valids.append(out.valid)
         confidences.append(confidence)
-    return torch.cat(maps, 1), torch.cat(valids, 1), torch.cat(confidences, 1)
+        if cross:
+            volume = out.extras.get("aggregate_fixed")
+            if volume is None:  # only the CPU's 16-bit path keeps the int16 aggregate; elsewhere the float32 one
+                aggregates.append((out.cost_volume, 1.0))
+            else:
+                aggregates.append((volume, float(out.extras["aggregate_scale"])))
+    result = torch.cat(maps, 1), torch.cat(valids, 1), torch.cat(confidences, 1)
+    if cross:
+        return (*result, cross_costs(aggregates, result[0]))
+    return result
 
 
 @register("sgm-refine", kind="learned", needs_weights=True,
@@ -341,11 +357,12 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
     net = load_network("refine", checkpoint)
-    base, valid, confidence = refine_bases(net.bases, left, right, max_disp, **options)
+    cross = getattr(net, "evidence", "pixel") == "cross"
+    base, valid, confidence, *costs = refine_bases(net.bases, left, right, max_disp, cross=cross, **options)
     dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
         disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),
-                                   max_disp)
+                                   max_disp, costs[0].to(dtype) if cross else None)
     return StereoOutput(disp.to(left.dtype), torch.ones_like(valid[:, :1]), confidence=confidence[:, :1],
                         extras={"base": base[:, :1]})
 

@@ -226,6 +226,23 @@ def _mixed_u8_hwd(own: list[np.ndarray], w_own: float, w_extra: float, other: to
     return out
 
 
+def _fixed_output(selection, confidence: torch.Tensor, accs: list[np.ndarray], scale: int, fixed_volume: bool,
+                  back: dict) -> StereoOutput:
+    """``sgm``'s output from the 16-bit path: the filters of the back end, the confidence 0 where they rejected, and
+    with ``fixed_volume`` the int16 aggregate in ``extras["aggregate_fixed"]`` (a (B, D, H, W) view of the kernel's
+    (H, W, D) arrays, no copy for one item) in units of ``1 / extras["aggregate_scale"]`` cost units."""
+    fixed = None
+    if fixed_volume:
+        fixed = (torch.from_numpy(accs[0])[None] if len(accs) == 1
+                 else torch.stack([torch.from_numpy(a) for a in accs])).permute(0, 3, 1, 2)
+    del accs
+    out = _filter(selection, None, **back)
+    out.confidence = confidence * out.valid.to(confidence.dtype)
+    if fixed is not None:
+        out.extras.update(aggregate_fixed=fixed, aggregate_scale=torch.tensor(scale))
+    return out
+
+
 def _given_p2_maps(maps, left: torch.Tensor, P1: float, P2: float, paths: int,
                    step: float | None) -> tuple[torch.Tensor, float]:
     """Checked ``p2_maps`` on the penalty grid, and the largest penalty (``P2`` or above) for the 16-bit check."""
@@ -307,7 +324,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
         vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
         bits = census_window * census_window  # >= every census distance and the out-of-image fill
         s = None if extra is not None or keep_volume else fixed_point_scale_for(P1, P2, directions, step, bits)
-        if extra is not None and mix_step is not None and not keep_volume and not fixed_volume:
+        if extra is not None and mix_step is not None and not keep_volume:
             # the mixed cost on the mix_step grid as uint8 in units of mix_step: the same 16-bit path with the
             # penalties in those units (exact scalings by a power of two), selected in cost units again
             q = 1.0 / mix_step
@@ -323,10 +340,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
                     selection, confidence = select_disparity_confidence_fixed(
                         accs, int(sq * q), back.pop("subpixel"), back.pop("uniqueness"), back.pop("lr_tol"),
                         left.dtype, left.device)
-                    del accs
-                    out = _filter(selection, None, **back)
-                    out.confidence = confidence * out.valid.to(confidence.dtype)
-                    return out
+                    return _fixed_output(selection, confidence, accs, int(sq * q), fixed_volume, back)
         if s is not None:
             # 16-bit fixed point: select straight from the int16 aggregate (no float32 volume)
             accs = [sgm_aggregate_fixed_hwd(v, P1, P2, directions, left[i], p2_alpha, step, s,
@@ -335,16 +349,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
             del vols
             selection, confidence = select_disparity_confidence_fixed(
                 accs, s, back.pop("subpixel"), back.pop("uniqueness"), back.pop("lr_tol"), left.dtype, left.device)
-            fixed = None
-            if fixed_volume:  # one item: a view of the kernel's array, no copy
-                fixed = (torch.from_numpy(accs[0])[None] if len(accs) == 1
-                         else torch.stack([torch.from_numpy(a) for a in accs])).permute(0, 3, 1, 2)
-            del accs
-            out = _filter(selection, None, **back)
-            out.confidence = confidence * out.valid.to(confidence.dtype)
-            if fixed is not None:
-                out.extras.update(aggregate_fixed=fixed, aggregate_scale=torch.tensor(s))
-            return out
+            return _fixed_output(selection, confidence, accs, s, fixed_volume, back)
         if extra is not None:
             vols = _mixed_hwd(vols, *extra, mix_step)
         agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step, p2_maps=maps).to(left.device)

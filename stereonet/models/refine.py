@@ -56,9 +56,16 @@ BASES = ("sgm", "siamese-census-sgm", "siamese-sgm")
 """Matchers whose maps a RefineNet may read (``bases``)."""
 
 MODES = ("residual", "select")
-EVIDENCE = ("pixel", "census")
+EVIDENCE = ("pixel", "census", "cross")
 """Per-candidate evidence of a ``select`` network: ``"pixel"`` the planes of :data:`CANDIDATE_CHANNELS`;
-``"census"`` adds the windowed census distance of the candidate (:func:`census_distance`), one more plane."""
+``"census"`` adds the windowed census distance of the candidate (:func:`census_distance`), one more plane;
+``"cross"`` (a choice between matchers: two or more SGM-family bases, no radii) adds how much worse every base's own
+aggregated cost finds the candidate than its best disparity (:func:`cross_costs`), one plane per base."""
+CROSS_BASES = ("sgm", "siamese-census-sgm")
+"""Bases whose aggregated SGM cost ``evidence="cross"`` reads (``keep_volume="fixed"``)."""
+CROSS_NORM = 8 * 48.0
+"""Cost units of one large-jump penalty on each of 8 paths (``sgm``'s P2 = 48 census bits): a candidate whose
+aggregated cost exceeds the best by this much gets the cross-cost feature 0.5."""
 CENSUS_RADIUS = 2
 """5x5 census (24 sign comparisons with the centre), averaged over a 5x5 box."""
 DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
@@ -69,6 +76,33 @@ def first_argmax(scores: torch.Tensor) -> torch.Tensor:
     torch's: the first maximum, a NaN counts as the maximum), computed along a contiguous last axis: torch's CPU
     reduction over the short middle axis took 16 ms for K = 2 on a 450x375 pair (one thread), this ~1.3 ms."""
     return scores.movedim(1, -1).contiguous().argmax(-1).unsqueeze(1)
+
+
+def cross_costs(aggregates: list[tuple[torch.Tensor, float]], disparity: torch.Tensor) -> torch.Tensor:
+    """How much worse each base's aggregated cost finds each base's disparity than its own best, in ``[0, 1)``.
+
+    ``aggregates``: per base, its aggregated SGM cost :math:`(B, D, H, W)` (any dtype, e.g. ``sgm``'s int16
+    ``extras["aggregate_fixed"]``) and the scale of its units (``extras["aggregate_scale"]``: the volume holds
+    ``scale * cost``); ``disparity`` :math:`(B, M, H, W)` the M bases' (filled) maps. Returns :math:`(B, M M, H, W)`,
+    plane ``e * M + k`` = ``t / (1 + t)`` with ``t = (A_e(d_k) - min_d A_e) / (scale_e * CROSS_NORM)``, ``A_e(d)`` the lower
+    of base ``e``'s costs at the two integer disparities around ``d``: base
+    ``e``'s opinion of base ``k``'s answer (0 where it is ``e``'s own best; ``e == k`` is above 0 only where ``d_k``
+    was filled or refined away from the minimum). Every base's cost means the same on any scene (census bits for
+    ``sgm``), so the evidence "the other matcher finds this answer costly" does not depend on the training renders'
+    base rates."""
+    maps = disparity.shape[1]
+    if len(aggregates) != maps:
+        raise StereoInputError(f"aggregates: expected one per map ({maps}), got {len(aggregates)}")
+    planes = []
+    for vol, scale in aggregates:
+        d = vol.shape[1]
+        best = vol.amin(1, keepdim=True).to(torch.float32)
+        for k in range(maps):  # a sub-pixel value is as good as the better of the two disparities around it
+            low = disparity[:, k:k + 1].floor().clamp(0, d - 1).long()
+            at = torch.minimum(vol.gather(1, low), vol.gather(1, (low + 1).clamp(max=d - 1))).to(torch.float32)
+            t = (at - best) / (float(scale) * CROSS_NORM)
+            planes.append((t / (1.0 + t)).to(disparity.dtype))
+    return torch.cat(planes, 1)
 
 
 def candidate_offsets(radii: tuple[int, ...]) -> list[tuple[int, int]]:
@@ -145,8 +179,11 @@ class RefineNet(nn.Module):
         if not bases or any(b not in BASES for b in bases) or len(set(bases)) < len(bases):
             raise StereoInputError(f"bases: expected distinct names from {', '.join(BASES)}, got {list(bases)}")
         if evidence not in EVIDENCE or (evidence != "pixel" and mode != "select"):
-            raise StereoInputError(f"evidence: expected one of {', '.join(EVIDENCE)} ('census' with mode 'select'), "
-                                   f"got {evidence!r} with mode {mode!r}")
+            raise StereoInputError(f"evidence: expected one of {', '.join(EVIDENCE)} ('census', 'cross' with mode "
+                                   f"'select'), got {evidence!r} with mode {mode!r}")
+        if evidence == "cross" and (radii or len(bases) < 2 or any(b not in CROSS_BASES for b in bases)):
+            raise StereoInputError(f"evidence: 'cross' is a choice between two or more of {', '.join(CROSS_BASES)} "
+                                   f"(no radii), got bases {list(bases)} and radii {list(radii)}")
         if len(bases) > 1 and mode != "select":
             raise StereoInputError(f"bases: more than one map needs mode 'select', got mode {mode!r}")
         self.channels, self.dilations = int(channels), tuple(int(d) for d in dilations)
@@ -163,7 +200,7 @@ class RefineNet(nn.Module):
             nn.init.zeros_(self.head.bias)
         else:  # score_k = w2 . relu(A ctx + B f_k + b): A ctx once per pixel, B f_k per candidate
             self.score_context = nn.Conv2d(self.channels, self.channels, 1)
-            extra = (maps if maps > 1 else 0) + (1 if evidence == "census" else 0)
+            extra = (maps if maps > 1 else 0) + (1 if evidence == "census" else 0) + (maps if evidence == "cross" else 0)
             self.score_candidate = nn.Conv2d(CANDIDATE_CHANNELS + extra, self.channels, 1, bias=False)
             self.score_out = nn.Conv2d(self.channels, 1, 1)
             nn.init.zeros_(self.score_out.weight)
@@ -192,24 +229,33 @@ class RefineNet(nn.Module):
                                        f"({', '.join(self.bases)}), got {tuple(t.shape)}")
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor, valid: torch.Tensor,
-                confidence: torch.Tensor, max_disp: float | torch.Tensor) -> torch.Tensor:
+                confidence: torch.Tensor, max_disp: float | torch.Tensor,
+                cross: torch.Tensor | None = None) -> torch.Tensor:
         """Refined disparity :math:`(B, 1, H, W)` >= 0 from images :math:`(B, C, H, W)` in [0, 1] and the
         classical matchers' filled disparities, validities and confidences :math:`(B, M, H, W)`, one map per
-        base; ``max_disp`` the range the maps were searched in (a number, or one per item)."""
+        base; ``max_disp`` the range the maps were searched in (a number, or one per item); ``cross``
+        :math:`(B, M M, H, W)` the :func:`cross_costs` of an ``evidence="cross"`` network (else unused)."""
         if self.mode == "select":
-            scores, candidates = self.scores(left, right, disparity, valid, confidence, max_disp)
+            scores, candidates = self.scores(left, right, disparity, valid, confidence, max_disp, cross)
             return candidates.gather(1, first_argmax(scores))  # ties: the pixel's own value
         x = self.inputs(left, right, disparity, valid, confidence, max_disp)
         step = self.head(self.body(x))
         return F.relu(disparity + step)  # the residual in pixels: most corrections are a few pixels
 
     def scores(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor, valid: torch.Tensor,
-               confidence: torch.Tensor, max_disp: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+               confidence: torch.Tensor, max_disp: float | torch.Tensor,
+               cross: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``select`` mode: candidate scores and candidate disparities, both :math:`(B, K, H, W)`, candidate 0
         the first map's own value; the first map's candidates in :func:`candidate_offsets`' order, then each
-        further map's in the same order."""
+        further map's in the same order. ``cross``: as for :meth:`forward`."""
         if self.mode != "select":
             raise StereoInputError(f"mode: scores() needs mode 'select', this network has {self.mode!r}")
+        if self.evidence == "cross":
+            maps = len(self.bases)
+            if cross is None or cross.dim() != 4 or cross.shape[1] != maps * maps or cross.shape[-2:] != disparity.shape[-2:]:
+                got = None if cross is None else tuple(cross.shape)
+                raise StereoInputError(f"cross: expected (B, {maps * maps}, H, W) cross costs (evidence 'cross'), "
+                                       f"got {got}")
         x = self.inputs(left, right, disparity, valid, confidence, max_disp)
         grey_l, grey_r = x[:, :1], standardize_image(right, grey=True)
         ctx = self.score_context(self.body(x))
@@ -230,6 +276,8 @@ class RefineNet(nn.Module):
                     planes.append(torch.full_like(cand, m / (maps - 1)))
                 if self.evidence == "census":
                     planes.append(census_distance(grey_l, warped))
+                if self.evidence == "cross":  # every base's opinion of this candidate (own value: offset 0)
+                    planes += [cross[:, e * maps + m:e * maps + m + 1].to(cand.dtype) for e in range(maps)]
                 scores.append(self.score_out(F.relu(ctx + self.score_candidate(torch.cat(planes, 1)))))
                 candidates.append(cand)
         return torch.cat(scores, 1), torch.cat(candidates, 1)

@@ -583,14 +583,17 @@ class RefineModule(StereoModule):
         own = batch.get("max_disp") if self.hparams.get("pair_ranges", True) else None
         ranges = own or [self.hparams.max_disp] * b  # each pair's own range, as eval.py gives
         ranges = [max(1, min(int(r), w - 1)) for r in ranges]
+        cross = self.model.evidence == "cross"
         with torch.no_grad():
-            parts = [refine_bases(self.model.bases, left[i:i + 1], right[i:i + 1], ranges[i]) for i in range(b)]
-            base, valid, confidence = (torch.cat(t) for t in zip(*parts))
+            parts = [refine_bases(self.model.bases, left[i:i + 1], right[i:i + 1], ranges[i], cross=cross)
+                     for i in range(b)]
+            base, valid, confidence, *costs = (torch.cat(t) for t in zip(*parts))
         gt, gt_valid = batch["disparity"], batch["valid"]
         scale = torch.tensor(ranges, dtype=left.dtype)
         extra = {}
         if self.hparams.mode == "select":
-            scores, candidates = self.model.scores(left, right, base, valid, confidence, scale)
+            scores, candidates = self.model.scores(left, right, base, valid, confidence, scale,
+                                                   costs[0] if cross else None)
             right_ones = (candidates - gt).abs() <= self.hparams.tolerance
             usable = gt_valid[:, 0] & right_ones.any(1)
             if self.hparams.target == "decisive":  # only where the choice matters: some candidates right, some not
