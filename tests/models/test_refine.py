@@ -325,3 +325,88 @@ def test_first_argmax_equals_torch_argmax_with_ties_and_nan(k):
     scores[1, :, 2, 2] = -float("inf")
     got = first_argmax(scores)
     assert got.shape == (2, 1, 7, 9) and torch.equal(got, scores.argmax(dim=1, keepdim=True))
+
+
+def test_cross_costs_rate_each_answer_by_each_aggregate():
+    """cross_costs: plane e * M + k is base e's aggregated cost at base k's disparity above e's best, in units of
+    scale * CROSS_NORM, mapped by t / (1 + t); a sub-pixel value takes the better of its two integer neighbours;
+    the volume's dtype and strides (an int16 permuted view, as sgm's aggregate_fixed) do not matter."""
+    from stereonet.models.refine import CROSS_NORM, cross_costs
+
+    g = torch.Generator().manual_seed(3)
+    b, d, h, w = 2, 9, 5, 7
+    hwd = [torch.randint(0, 3000, (b, h, w, d), generator=g, dtype=torch.int16) for _ in range(2)]
+    vols = [v.permute(0, 3, 1, 2) for v in hwd]  # (B, D, H, W) views of (B, H, W, D) memory
+    scales = [4.0, 16.0]
+    disp = torch.rand(b, 2, h, w, generator=g) * (d - 1)
+    disp[0, 0, 0, 0] = 0.0
+    disp[0, 1, 0, 0] = float(d - 1)  # both ends of the range
+    out = cross_costs(list(zip(vols, scales)), disp)
+    assert out.shape == (b, 4, h, w) and out.dtype == disp.dtype
+    for e in range(2):
+        v = vols[e].float()
+        best = v.min(1).values
+        for k in range(2):
+            low = disp[:, k].floor().long().clamp(0, d - 1)
+            high = (low + 1).clamp(max=d - 1)
+            at = torch.minimum(v.gather(1, low[:, None])[:, 0], v.gather(1, high[:, None])[:, 0])
+            t = (at - best) / (scales[e] * CROSS_NORM)
+            assert torch.allclose(out[:, e * 2 + k], t / (1 + t))
+    assert float(out.min()) >= 0.0 and float(out.max()) < 1.0
+    own = vols[0].float().argmin(1, keepdim=True).float()  # a base's own best disparity rates 0 under its own cost
+    assert float(cross_costs([(vols[0], 1.0), (vols[1], 1.0)], torch.cat([own, own], 1))[:, 0].abs().max()) == 0.0
+    with pytest.raises(StereoInputError, match="aggregates"):
+        cross_costs([(vols[0], 1.0)], disp)
+
+
+def test_cross_evidence_reads_every_base_and_keeps_the_untrained_choice(tmp_path):
+    """evidence="cross": one candidate plane per base, the untrained network returns the first map, the scores
+    depend on the cross costs, the matcher computes them from the bases' own aggregates (the maps unchanged), and
+    networks that cannot have them are refused with one line."""
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import load_network, refine_bases
+
+    torch.manual_seed(0)
+    kw = dict(channels=4, dilations=(1,), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"))
+    plain, cross = RefineNet(**kw), RefineNet(**kw, evidence="cross")
+    assert cross.score_candidate.in_channels == plain.score_candidate.in_channels + 2
+    left, right = _pair(32, 64, 4)
+    maps, valid, conf = refine_bases(kw["bases"], left, right, 16)
+    maps2, valid2, conf2, costs = refine_bases(kw["bases"], left, right, 16, cross=True)
+    assert torch.equal(maps, maps2) and torch.equal(valid, valid2) and torch.equal(conf, conf2)
+    assert costs.shape == (1, 4, 32, 64) and float(costs.max()) > 0.0
+    assert torch.equal(cross(left, right, maps, valid, conf, 16, costs), maps[:, :1])
+    with pytest.raises(StereoInputError, match="cross"):
+        cross(left, right, maps, valid, conf, 16)
+    torch.nn.init.normal_(cross.score_out.weight)
+    before, _ = cross.scores(left, right, maps, valid, conf, 16, costs)
+    after, _ = cross.scores(left, right, maps, valid, conf, 16, costs.flip(1))
+    assert not torch.allclose(before, after)
+    config = {**{k: list(v) if isinstance(v, tuple) else v for k, v in kw.items()}, "evidence": "cross"}
+    path = tmp_path / "refine.pt"
+    save_weights(path, "refine", config, cross)
+    assert load_network("refine", str(path)).evidence == "cross"
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    expected = cross(left, right, maps, valid, conf, 16, costs)
+    assert torch.equal(out.disparity, expected)
+    with pytest.raises(StereoInputError, match="evidence"):
+        RefineNet(**{**kw, "radii": (1,)}, evidence="cross")  # neighbours' values have no cross costs
+    with pytest.raises(StereoInputError, match="evidence"):
+        RefineNet(**{**kw, "bases": ("siamese-sgm", "sgm")}, evidence="cross")
+    with pytest.raises(StereoInputError, match="bases"):
+        refine_bases(("siamese-sgm", "sgm"), left, right, 16, cross=True)
+
+
+def test_siamese_census_sgm_keeps_its_fixed_aggregate():
+    """keep_volume="fixed" on the mixed 16-bit path (siamese-census-sgm): the int16 aggregate over its scale equals
+    the float32 aggregate that keep_volume=True returns, and the map is the same as without the option."""
+    from stereonet.matchers import match
+
+    left, right = _pair(32, 64, 4)
+    out = match("siamese-census-sgm", left, right, 16)
+    fixed = match("siamese-census-sgm", left, right, 16, keep_volume="fixed")
+    kept = match("siamese-census-sgm", left, right, 16, keep_volume=True)
+    acc, scale = fixed.extras["aggregate_fixed"], fixed.extras["aggregate_scale"]
+    assert acc.dtype == torch.int16 and fixed.cost_volume is None
+    assert torch.equal(acc.float() / scale.float(), kept.cost_volume)
+    assert torch.equal(fixed.disparity, out.disparity) and torch.equal(fixed.valid, out.valid)

@@ -614,3 +614,17 @@ def test_refine_module_decisive_target_scores_only_the_pixels_where_the_choice_m
     assert extra["oracle_bad2"] <= min(extra["base_bad2"], extra["base2_bad2"])
     first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 1e-2)
     assert final < first, (first, final)
+
+
+def test_refine_module_cross_evidence_starts_at_log_two_and_exports_it(one_thread):
+    """evidence="cross": the training step computes the bases' cross costs (untrained: the two candidates tie, loss
+    log 2), a few steps lower the loss, and the exported config keeps the option."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = RefineModule(channels=8, dilations=(1, 2), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"),
+                          target="decisive", evidence="cross")
+    loss, _, _ = module.compute(batch)
+    assert abs(float(loss.detach()) - math.log(2)) < 1e-5
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 1e-2)
+    assert final < first, (first, final)
+    assert module.model_config()["evidence"] == "cross"
