@@ -270,9 +270,10 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) -> St
     margin (:func:`~stereonet.select.confidence.cost_margin_confidence`), 0 on invalid pixels. The returned
     ``cost_volume`` is the aggregated cost, except on the CPU fast path (16-bit fixed point, below) without
     ``keep_volume=True``, where the float32 volume is never built (``cost_volume=None``, as for ``bm-*``).
-    ``keep_volume="fixed"``: on that path, the int16 aggregate itself in ``extras["aggregate_fixed"]`` (a
-    (B, D, H, W) view of the kernel's (H, W, D) arrays, in units of ``1 / extras["aggregate_scale"]``; what
-    ``graphcut``'s census proposals rank, without the float32 copy), elsewhere the float32 ``cost_volume``.
+    ``keep_volume="fixed"``: on that path (census alone or with a mixed-in cost), the int16 aggregate itself in
+    ``extras["aggregate_fixed"]`` (a (B, D, H, W) view of the kernel's (H, W, D) arrays, in units of
+    ``1 / extras["aggregate_scale"]``; what ``graphcut``'s census proposals rank and ``sgm-refine``'s cross costs
+    read, without the float32 copy), elsewhere the float32 ``cost_volume``.
 
     Census costs are integers, so ``P1`` and the edge-adapted ``P2`` are rounded to multiples of
     :data:`~stereonet.aggregate.sgm.CENSUS_PENALTY_STEP` (1/16 bit) in every backend; the CPU fast path then

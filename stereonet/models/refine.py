@@ -30,6 +30,9 @@ own value, so an untrained network returns the first map. Two matchers with diff
 learned cost) err in different places, so the best choice between them is far better than either; whether a
 network learns that choice from synthetic pairs in a way that holds on real ones is what the experiment measures.
 The network only reads the maps: the matcher (``sgm-refine``) and the training module run the named matchers.
+
+``evidence="cross"`` (a choice between SGM-family matchers) also gives every candidate each matcher's opinion of it:
+how far above its own best that matcher's aggregated cost lies at the candidate's disparity (:func:`cross_costs`).
 """
 
 from __future__ import annotations
