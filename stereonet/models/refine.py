@@ -87,12 +87,11 @@ def cross_costs(aggregates: list[tuple[torch.Tensor, float]], disparity: torch.T
     ``aggregates``: per base, its aggregated SGM cost :math:`(B, D, H, W)` (any dtype, e.g. ``sgm``'s int16
     ``extras["aggregate_fixed"]``) and the scale of its units (``extras["aggregate_scale"]``: the volume holds
     ``scale * cost``); ``disparity`` :math:`(B, M, H, W)` the M bases' (filled) maps. Returns :math:`(B, M M, H, W)`,
-    plane ``e * M + k`` = ``t / (1 + t)`` with ``t = (A_e(d_k) - min_d A_e) / (scale_e * CROSS_NORM)``, ``A_e(d)`` the lower
-    of base ``e``'s costs at the two integer disparities around ``d``: base
-    ``e``'s opinion of base ``k``'s answer (0 where it is ``e``'s own best; ``e == k`` is above 0 only where ``d_k``
-    was filled or refined away from the minimum). Every base's cost means the same on any scene (census bits for
-    ``sgm``), so the evidence "the other matcher finds this answer costly" does not depend on the training renders'
-    base rates."""
+    plane ``e * M + k`` = ``t / (1 + t)`` with ``t = (A_e(d_k) - min_d A_e) / (scale_e * CROSS_NORM)``, ``A_e(d)``
+    the lower of base ``e``'s costs at the two integer disparities around ``d``: base ``e``'s opinion of base ``k``'s
+    answer (0 where it is ``e``'s own best; ``e == k`` is above 0 only where ``d_k`` was filled). Every base's cost
+    means the same on any scene (census bits for ``sgm``), so the evidence "the other matcher finds this answer
+    costly" does not depend on the training renders' base rates."""
     maps = disparity.shape[1]
     if len(aggregates) != maps:
         raise StereoInputError(f"aggregates: expected one per map ({maps}), got {len(aggregates)}")
