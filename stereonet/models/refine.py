@@ -89,7 +89,7 @@ def cross_costs(aggregates: list[tuple[torch.Tensor, float]], disparity: torch.T
     ``scale * cost``); ``disparity`` :math:`(B, M, H, W)` the M bases' (filled) maps. Returns :math:`(B, M M, H, W)`,
     plane ``e * M + k`` = ``t / (1 + t)`` with ``t = (A_e(d_k) - min_d A_e) / (scale_e * CROSS_NORM)``, ``A_e(d)``
     the lower of base ``e``'s costs at the two integer disparities around ``d``: base ``e``'s opinion of base ``k``'s
-    answer (0 where it is ``e``'s own best; ``e == k`` is above 0 only where ``d_k`` was filled). Every base's cost
+    answer (0 where it is ``e``'s own best; ``e == k`` is above 0 where ``d_k`` was filled or moved by a filter). Every base's cost
     means the same on any scene (census bits for ``sgm``), so the evidence "the other matcher finds this answer
     costly" does not depend on the training renders' base rates."""
     maps = disparity.shape[1]
