@@ -1,52 +1,60 @@
-"""SMD uncertainty candidates (b, ead, p2; see smd_uncertainty.txt) ranked by bad-2 sparsification AUSE.
-
-    python docs/experiments/smd_uncertainty.py [SPEC ...]     (default: synthetic:32 val2k val4k)
+"""Issue 14 item 3(b), thirty-first session: sparsification AUSE of smd's errors ranked by three functions of its own
+mixture (rule and reasoning in docs/experiments/smd_uncertainty.txt): b (the chosen mode's scale, what smd returns),
+u1 = E|X - d*| and u2 = P(|X - d*| > 2) under the predicted mixture, d* the returned disparity. With "real" in the
+specs, sgm's cost-margin AUSE on the same pairs is printed beside (evaluation only).
+    python docs/experiments/smd_uncertainty.py "unc2;unc4"
+    python docs/experiments/smd_uncertainty.py real
 """
 import statistics
 import sys
 
 import torch
 
-from stereonet.matchers import match
-from stereonet.metrics import sparsification_ause
-
 sys.path.insert(0, "docs/experiments")
 from val_sets import load  # noqa: E402
 
+from stereonet import matchers  # noqa: E402
+from stereonet.evaluation import _batch, expand_data_specs  # noqa: E402
+from stereonet.metrics import sparsification_ause  # noqa: E402
 
-def laplace_tail(mu, b, m, t):
-    """P(|X - m| > t) for X ~ Laplace(mu, b)."""
-    lo, hi = m - t, m + t
-    cdf = lambda x: torch.where(x < mu, 0.5 * torch.exp((x - mu) / b), 1 - 0.5 * torch.exp(-(x - mu) / b))
-    return 1 - (cdf(hi) - cdf(lo))
+TAU = 2.0
+
+
+def laplace_tail(mu, b, c, tau):
+    """P(|X - c| > tau) for X ~ Laplace(mu, b)."""
+    hi, lo = c + tau, c - tau
+    above = torch.where(hi >= mu, 0.5 * torch.exp(-(hi - mu) / b), 1 - 0.5 * torch.exp((hi - mu) / b))
+    below = torch.where(lo <= mu, 0.5 * torch.exp((lo - mu) / b), 1 - 0.5 * torch.exp(-(lo - mu) / b))
+    return above + below
 
 
 def candidates(out):
-    e = out.extras
-    first = e["pi"] / e["b1"] >= (1 - e["pi"]) / e["b2"]  # the chosen component, as mode_disparity
-    pk = torch.where(first, e["pi"], 1 - e["pi"])
-    bk, bj = torch.where(first, e["b1"], e["b2"]), torch.where(first, e["b2"], e["b1"])
-    mk, mj = torch.where(first, e["mu1"], e["mu2"]), torch.where(first, e["mu2"], e["mu1"])
-    gap = (mk - mj).abs()
-    ead = pk * bk + (1 - pk) * (gap + bj * torch.exp(-gap / bj))
-    p2 = pk * torch.exp(-2.0 / bk) + (1 - pk) * laplace_tail(mj, bj, mk, 2.0)
-    return {"b": out.uncertainty, "ead": ead, "p2": p2}
+    """The three uncertainties of one smd output (all in pixels of its grid, or a probability)."""
+    e, d = out.extras, out.disparity
+    w = (e["pi"], 1 - e["pi"])
+    modes = ((e["mu1"], e["b1"]), (e["mu2"], e["b2"]))
+    u1 = sum(wk * ((d - mu).abs() + b * torch.exp(-(d - mu).abs() / b)) for wk, (mu, b) in zip(w, modes))
+    u2 = sum(wk * laplace_tail(mu, b, d, TAU) for wk, (mu, b) in zip(w, modes))
+    return {"b": out.uncertainty, "u1": u1, "u2": u2}
 
 
-def main(specs):
-    for spec in specs:
-        ds = load(spec)
-        values = {}
-        for i in range(len(ds)):
-            item = ds[i]
-            out = match("smd", item["left"][None], item["right"][None], item["max_disp"])
-            for name, u in candidates(out).items():
-                values.setdefault(name, []).append(
-                    sparsification_ause(out.disparity, item["disparity"][None], item["valid"][None], uncertainty=u))
-        print(f"{spec} ({len(ds)} pairs): median AUSE " + "  ".join(
-            f"{k} {statistics.median(v):.3f}" for k, v in values.items()), flush=True)
-        print("  per pair " + " | ".join(f"{k}: " + " ".join(f"{x:.2f}" for x in v) for k, v in values.items()))
-
-
-if __name__ == "__main__":
-    main(sys.argv[1:] or ["synthetic:32", "val2k", "val4k"])
+specs = [s for spec in sys.argv[1].split(";") for s in (expand_data_specs(spec) if spec == "real" else [spec])]
+torch.set_num_threads(2)
+table = {}
+for spec in specs:
+    ds = load(spec)
+    for i in range(len(ds)):
+        item = ds[i]
+        left, right, max_disp = _batch(item["left"]).float(), _batch(item["right"]).float(), int(item["max_disp"])
+        gt, gv = _batch(item["disparity"]).float(), _batch(item["valid"]).bool()
+        out = matchers.match("smd", left, right, max_disp)
+        row = {k: sparsification_ause(out.disparity, gt, gv, uncertainty=u, pred_valid=out.valid)
+               for k, u in candidates(out).items()}
+        if sys.argv[1] == "real":
+            s = matchers.match("sgm", left, right, max_disp)
+            row["sgm margin"] = sparsification_ause(s.disparity, gt, gv, confidence=s.confidence, pred_valid=s.valid)
+        table.setdefault(spec, []).append(row)
+        print(spec, item["name"], " ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+for spec, rows in table.items():
+    print(f"{spec}: mean AUSE " + ", ".join(f"{k} {statistics.fmean(r[k] for r in rows):.3f}" for k in rows[0])
+          + " | median " + ", ".join(f"{k} {statistics.median(r[k] for r in rows):.3f}" for k in rows[0]))
