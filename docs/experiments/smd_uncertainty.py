@@ -14,7 +14,7 @@ sys.path.insert(0, "docs/experiments")
 from val_sets import load  # noqa: E402
 
 from stereonet import matchers  # noqa: E402
-from stereonet.evaluation import _batch, expand_data_specs  # noqa: E402
+from stereonet.evaluation import _batch, apply_fill, expand_data_specs  # noqa: E402
 from stereonet.metrics import sparsification_ause  # noqa: E402
 
 TAU = 2.0
@@ -51,7 +51,7 @@ for spec in specs:
         row = {k: sparsification_ause(out.disparity, gt, gv, uncertainty=u, pred_valid=out.valid)
                for k, u in candidates(out).items()}
         if sys.argv[1] == "real":
-            s = matchers.match("sgm", left, right, max_disp)
+            s = apply_fill(matchers.match("sgm", left, right, max_disp))  # as eval.py --fill scores it
             row["sgm margin"] = sparsification_ause(s.disparity, gt, gv, confidence=s.confidence, pred_valid=s.valid)
         table.setdefault(spec, []).append(row)
         print(spec, item["name"], " ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
