@@ -15,7 +15,8 @@ class StereoOutput:
         disparity: left-referenced disparity :math:`(B, 1, H, W)`, float, ``x_right = x_left - d``.
         valid: bool mask :math:`(B, 1, H, W)`; False where the method gives no answer (LR failure, border...).
         confidence: optional :math:`(B, 1, H, W)` in [0, 1], higher = more confident.
-        uncertainty: optional :math:`(B, 1, H, W)`, in pixels of disparity (e.g. a Laplacian scale).
+        uncertainty: optional :math:`(B, 1, H, W)`, higher = less sure (a scale in pixels of disparity, or a
+            probability of error such as ``smd``'s).
         cost_volume: optional :math:`(B, D, H, W)`, lower = better.
         extras: free-form named tensors (e.g. occlusion labels, mixture parameters).
     """

@@ -123,14 +123,16 @@ def test_torch_backend_is_the_plain_network(cones, threads):
     """backend='torch' runs the network exactly as predict_disparity / predict_smd do."""
     from stereonet.matchers.learned import load_network
     from stereonet.models.dispnet import predict_disparity
-    from stereonet.models.smd import predict_smd
+    from stereonet.models.smd import MixtureParams, error_probability, predict_smd
 
     left, right = cones
     out = matchers.match("dispnet", left, right, MAX_DISP)
     assert torch.equal(out.disparity, predict_disparity(load_network("dispnet"), left, right).clamp(0, MAX_DISP))
     out = matchers.match("smd", left, right, MAX_DISP)
-    disp, unc = predict_smd(load_network("smd"), left, right)
-    assert torch.equal(out.disparity, disp.clamp(0, MAX_DISP)) and torch.equal(out.uncertainty, unc)
+    disp, _, mix = predict_smd(load_network("smd"), left, right, with_mixture=True)
+    disp = disp.clamp(0, MAX_DISP)
+    assert torch.equal(out.disparity, disp)
+    assert torch.equal(out.uncertainty, error_probability(MixtureParams(**mix), disp, 2.0))
 
 
 def test_onnx_without_file_exports_in_memory(cones, onnx_files, threads):

@@ -33,7 +33,7 @@ from stereonet.models.dispnet import run_padded
 from stereonet.models.graphs import NetworkGraph, OnnxGraph
 from stereonet.models.layers import InputPadder, resize_disparity
 from stereonet.models.siamese import siamese_cost_volume, tower_dtype
-from stereonet.models.smd import MixtureParams, mixture_outputs, padded_query_grid
+from stereonet.models.smd import MixtureParams, error_probability, mixture_outputs, padded_query_grid
 from stereonet.models.weights import default_weights_path, load_weights
 from stereonet.types import StereoOutput
 
@@ -180,27 +180,34 @@ def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, chec
     return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
 
 
+SMD_ERROR_TAU = 2.0
+"""``smd``'s uncertainty is the mixture's probability of an error above this many pixels (bad-2's threshold)."""
+
+
 @register("smd", kind="learned", needs_weights=True,
           description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt)")
 def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                 upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None) -> StereoOutput:
     """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
-    that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the chosen mode's Laplacian scale b
-    (same unit), ``confidence = exp(-b)``; extras hold both modes and the mixture weight."""
+    that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the probability under the predicted
+    mixture that this answer is off by more than 2 px of that grid
+    (:func:`~stereonet.models.smd.error_probability`; it ranks the head's errors better than the chosen mode's
+    scale b on data_gen, docs/experiments/smd_uncertainty.txt), ``confidence = 1 - uncertainty``; extras hold
+    both modes and the mixture weight."""
     graph = network_graph("smd", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]
     hq, wq = round(h * upsample), round(w * upsample)
     small_left, small_right, scale = _downscale_to_range(left, right, max_disp, graph.max_disp)
-    disp, unc, mix = _smd_predict(graph, small_left, small_right, upsample / scale)
+    disp, _, mix = _smd_predict(graph, small_left, small_right, upsample / scale)
     if disp.shape[-2:] != (hq, wq):  # rounding of the downscaled size
         ratio = wq / disp.shape[-1]
-        disp, unc = resize_disparity(disp, hq, wq, mode="nearest"), resize_disparity(unc, hq, wq, mode="nearest")
+        disp = resize_disparity(disp, hq, wq, mode="nearest")
         mix = {k: F.interpolate(v, size=(hq, wq), mode="nearest") * (1.0 if k == "pi" else ratio)
                for k, v in mix.items()}
-    disp = disp.clamp(0, max_disp * upsample).to(left.dtype)
-    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool), uncertainty=unc.to(left.dtype),
-                        confidence=torch.exp(-unc).to(left.dtype),
-                        extras={k: v.to(left.dtype) for k, v in mix.items()})
+    disp = disp.clamp(0, max_disp * upsample)
+    unc = error_probability(MixtureParams(**mix), disp, SMD_ERROR_TAU)
+    return StereoOutput(disp.to(left.dtype), torch.ones_like(disp, dtype=torch.bool), uncertainty=unc.to(left.dtype),
+                        confidence=(1.0 - unc).to(left.dtype), extras={k: v.to(left.dtype) for k, v in mix.items()})
 
 
 def _siamese_cost(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint, backend: str = "torch",

@@ -6,7 +6,8 @@ its disparity bilinearly, and a small MLP predicts a bimodal Laplacian mixture
     p(d) = pi / (2 b1) exp(-|d - mu1| / b1) + (1 - pi) / (2 b2) exp(-|d - mu2| / b2).
 
 The output disparity is the mode with the higher density (a sharp choice at depth edges instead of an
-average of foreground and background), the uncertainty is that mode's scale ``b``. Because queries are
+average of foreground and background), the network's uncertainty is that mode's scale ``b`` (the ``smd`` matcher
+reports :func:`error_probability` instead, which also weighs the other mode). Because queries are
 continuous, the disparity can be produced at any output size, e.g. higher than the input.
 
 ``context > 0`` also shows the head a neighbourhood of each query point (:func:`neighbourhood`): the backbone's
@@ -49,6 +50,22 @@ class MixtureParams:
         """The mode with the higher density and its scale: ((B,1,Hq,Wq) disparity, (B,1,Hq,Wq) b)."""
         first = self.pi / self.b1 >= (1 - self.pi) / self.b2  # peak density pi / (2 b) of each mode
         return torch.where(first, self.mu1, self.mu2), torch.where(first, self.b1, self.b2)
+
+
+def error_probability(mix: MixtureParams, disparity: torch.Tensor, tau: float = 2.0) -> torch.Tensor:
+    """``P(|X - disparity| > tau)`` for X distributed as the mixture ``mix`` (same units as ``disparity``): the
+    probability, under the head's own prediction, that an answer is off by more than ``tau``. Unlike the chosen
+    mode's scale it also counts the other mode's weight and distance (a pixel whose second mode is heavy and far is
+    ambiguous however narrow the first is); it is the ranking of bad-``tau`` errors a calibrated mixture would
+    give (the ``smd`` matcher's uncertainty, chosen on data_gen: docs/experiments/smd_uncertainty.txt)."""
+
+    def tail(mu: torch.Tensor, b: torch.Tensor) -> torch.Tensor:  # P(|X_k - d| > tau), X_k ~ Laplace(mu, b)
+        hi, lo = disparity + tau, disparity - tau
+        above = torch.where(hi >= mu, 0.5 * torch.exp(-(hi - mu) / b), 1 - 0.5 * torch.exp((hi - mu) / b))
+        below = torch.where(lo <= mu, 0.5 * torch.exp((lo - mu) / b), 1 - 0.5 * torch.exp(-(lo - mu) / b))
+        return above + below
+
+    return (mix.pi * tail(mix.mu1, mix.b1) + (1 - mix.pi) * tail(mix.mu2, mix.b2)).clamp(0.0, 1.0)
 
 
 @dataclass

@@ -45,7 +45,8 @@ def test_output_contract_odd_size(weights, name):
     assert torch.isfinite(out.disparity).all()
     assert out.disparity.min() >= 0 and out.disparity.max() <= 12
     if name == "smd":
-        assert out.uncertainty is not None and (out.uncertainty > 0).all()
+        assert out.uncertainty is not None and ((out.uncertainty >= 0) & (out.uncertainty <= 1)).all()
+        assert torch.equal(out.confidence, 1 - out.uncertainty)
         assert set(out.extras) == {"mu1", "mu2", "b1", "b2", "pi"}
     if name == "siamese-sgm":
         assert out.valid.all() and out.extras["lr_consistent"].dtype == torch.bool

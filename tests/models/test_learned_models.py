@@ -558,3 +558,26 @@ def test_edge_samples_sit_near_depth_edges_with_the_other_side_as_negative():
     assert torch.equal(x_pos[0], xs[0] - d)
     only = draw(edge_share=1.0)[1]  # every sample near an edge
     assert bool((((only >= 25) & (only <= 34)) | ((only >= 65) & (only <= 74))).all())
+
+
+def test_error_probability_is_the_mixture_tail_around_the_answer():
+    """error_probability: exp(-tau / b) for one Laplace mode centred on the answer, the Monte Carlo frequency of
+    |X - d| > tau for any mixture, and higher when the other mode is heavy and far, whatever its width."""
+    from stereonet.models.smd import MixtureParams, error_probability
+
+    one = lambda v: torch.full((1, 1, 1, 1), float(v), dtype=torch.float64)  # noqa: E731
+    single = MixtureParams(one(5), one(40), one(0.5), one(3), one(1.0))
+    assert torch.allclose(error_probability(single, one(5), 2.0), torch.exp(torch.tensor(-4.0, dtype=torch.float64)))
+    g = torch.Generator().manual_seed(0)
+    n = 400_000
+    for mu1, mu2, b1, b2, pi, d in [(5, 9, 0.7, 2.0, 0.6, 5.5), (3, 3.5, 1.5, 0.3, 0.2, 4.8), (10, 2, 0.4, 4, 0.9, 0)]:
+        mix = MixtureParams(one(mu1), one(mu2), one(b1), one(b2), one(pi))
+        first = torch.rand(n, generator=g, dtype=torch.float64) < pi
+        u = torch.rand(n, generator=g, dtype=torch.float64) - 0.5  # Laplace by inversion
+        lap = -torch.sign(u) * torch.log1p(-2 * u.abs())
+        x = torch.where(first, mu1 + b1 * lap, mu2 + b2 * lap)
+        freq = float(((x - d).abs() > 2.0).double().mean())
+        assert abs(float(error_probability(mix, one(d), 2.0)) - freq) < 4e-3, (mu1, mu2, b1, b2, pi, d)
+    narrow_alone = MixtureParams(one(5), one(5), one(0.3), one(0.3), one(0.7))
+    narrow_beside_far = MixtureParams(one(5), one(30), one(0.3), one(0.3), one(0.7))
+    assert float(error_probability(narrow_beside_far, one(5))) > 0.29 > float(error_probability(narrow_alone, one(5)))
