@@ -22,6 +22,7 @@ from data_gen.scene import (
     sample_rig,
     sample_scene,
     share_materials,
+    weaken_background,
 )
 
 
@@ -214,12 +215,14 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_rig
 
 
 def pair_name(seed: int, index: int, difficulty: int, rectified: bool, shared_material: float = 0.0,
-              textures: dict[str, float] | None = None) -> str:
+              textures: dict[str, float] | None = None, weak_background: float = 0.0) -> str:
     """The name of a rendered pair (``name`` of :func:`render_pair`; the CLI's folder names)."""
     kind = "rect" if rectified else "unrect"
     name = f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}" + (f"_m{shared_material:g}" if shared_material else "")
     if textures:
         name += "_t" + "-".join(f"{k}{w:g}" for k, w in sorted(textures.items()) if w > 0)
+    if weak_background:
+        name += f"_w{weak_background:g}"
     return name
 
 
@@ -228,7 +231,7 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
                 max_disp: int | None = None, baseline: float | None = None, distortion: bool | None = None,
                 noise: bool = True, photometric: bool = True, blur: bool = True, specular: bool = True,
                 occlusion_right: bool = False, shared_material: float = 0.0,
-                textures: dict[str, float] | None = None) -> dict:
+                textures: dict[str, float] | None = None, weak_background: float = 0.0) -> dict:
     """Render one synthetic stereo pair with exact ground truth; a pure function of its arguments.
 
     Args:
@@ -248,6 +251,9 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
             (the default, which draws nothing).
         textures: ``{kind: weight}`` over :data:`data_gen.textures.TEXTURE_KINDS` instead of the difficulty's
             texture mix (e.g. without ``weak`` and ``flat``: every surface textured); None = the difficulty's.
+        weak_background: probability that the scene's background walls get a weaker texture
+            (:func:`data_gen.scene.weaken_background`: objects in front of weakly textured walls, as often in
+            photos). A stream of its own, like ``shared_material``; 0 (the default) draws nothing.
 
     Returns:
         dict with ``left``, ``right`` float32 :math:`(3, H, W)` in [0, 1]; ``disparity``, ``disparity_right``,
@@ -264,16 +270,17 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
     seed, index, difficulty, height, width, supersample, max_disp = check_render_args(
         seed, index, difficulty, height, width, supersample, max_disp, baseline, num_objects)
     shared_material = check_probability(shared_material, "shared_material")
+    weak_background = check_probability(weak_background, "weak_background")
     textures = check_textures(textures)
     with single_thread():
         return _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp,
                             baseline, distortion, noise, photometric, blur, specular, occlusion_right,
-                            shared_material, textures)
+                            shared_material, textures, weak_background)
 
 
 def _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp, baseline,
                  distortion, noise, photometric, blur, specular, occlusion_right, shared_material,
-                 textures=None) -> dict:
+                 textures=None, weak_background=0.0) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
     rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects, textures)
@@ -281,6 +288,8 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
     response = [_photometric(rng, level), _photometric(rng, level)]
     if shared_material > 0:  # a stream of its own: everything above is the same pair as without it
         share_materials(scene, np.random.default_rng(np.random.SeedSequence([seed, index, 1])), shared_material)
+    if weak_background > 0:  # another stream of its own
+        weaken_background(scene, np.random.default_rng(np.random.SeedSequence([seed, index, 2])), weak_background)
     if render_module.USE_KERNELS:
         views = [render_view_arrays(scene, rig.left, supersample, specular, second_eye=rig.right.center),
                  render_view_arrays(scene, rig.right, supersample, specular)]
@@ -293,7 +302,8 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
     if not specular:
         gt["specular"].zero_()
     out = dict(left=images[0], right=images[1], calib=calibration_of(rig, max_disp), max_disp=max_disp,
-               name=pair_name(seed, index, difficulty, rectified, shared_material, textures), difficulty=difficulty, scene=scene,
+               name=pair_name(seed, index, difficulty, rectified, shared_material, textures, weak_background),
+               difficulty=difficulty, scene=scene,
                rig=rig)
     out.update(gt)
     return out

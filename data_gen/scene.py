@@ -268,6 +268,30 @@ def _choice(rng: np.random.Generator, probs: dict[str, float]) -> str:
     return names[_pick(rng, [probs[n] for n in names])]
 
 
+WEAK_BACKGROUND_FACTOR = (0.05, 0.5)
+"""Range (log-uniform) of the factor on the background walls' texture contrast in a :func:`weaken_background` scene."""
+
+
+def weaken_background(scene: Scene, rng: np.random.Generator, probability: float) -> None:
+    """With ``probability``, weaken the texture of the scene's background walls (in place).
+
+    In the sampled scenes every surface is textured alike, so at a depth edge neither side's texture dominates a
+    window that straddles it, and window matchers err to either side about equally. In photos, objects often stand
+    in front of weaker-textured surfaces (walls, road, sky), the foreground's texture and silhouette dominate such
+    windows, and most errors at depth edges are the foreground fattened into the background (thirty-first session,
+    docs/experiments/edge_fattening.py). Here every background wall's texture contrast is multiplied by one factor,
+    log-uniform in :data:`WEAK_BACKGROUND_FACTOR` (a weak texture, not none). Geometry, lights and every other draw
+    of the scene are unchanged (``rng`` should be a stream of its own).
+    """
+    probability = check_probability(probability, "weak_background")
+    if probability == 0.0 or rng.random() >= probability:
+        return
+    lo, hi = WEAK_BACKGROUND_FACTOR
+    factor = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+    for wall in scene.objects[:scene.num_background]:
+        wall.material = dataclasses.replace(wall.material, contrast=wall.material.contrast * factor)
+
+
 def sample_material(rng: np.random.Generator, level: dict, texel_mm_per_px: float) -> Material:
     """A random material for a surface where one pixel covers ``texel_mm_per_px`` scene units."""
     kind = _choice(rng, level["textures"])

@@ -22,8 +22,9 @@ every surface textured: the level's texture mix without ``weak`` and ``flat``; i
 textured-training run), ``val2w``/``val4w`` on seeds 5204/5205 (the thirtieth session's width-16 tower for
 speed), ``val2x``/``val4x`` on seeds 5206/5207 (its refine.pt retrained on that tower), ``val2y``/``val4y`` on seeds 5208/5209 (its width-16 run at
 edge share 0.75), ``val2z``/``val4z`` on seeds 5210/5211 (its 8-channel chooser), ``val2aa``/``val4aa`` on seeds 5212/5213 (the
-thirty-first session's cross-cost chooser), ``unc2``/``unc4`` on seeds 5214/5215 (its SMD uncertainty probe); any
-other spec as
+thirty-first session's cross-cost chooser), ``unc2``/``unc4`` on seeds 5214/5215 (its SMD uncertainty probe),
+``val2ab``/``val4ab`` on seeds 5216/5217 and ``wb2``/``wb4`` (every scene's background walls weakly textured,
+``weak_background=1``) on seeds 5218/5219 (its weak-background chooser); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -58,7 +59,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2y": (12, 5208, 2), "val4y": (8, 5209, 4),
         "val2z": (12, 5210, 2), "val4z": (8, 5211, 4),
         "val2aa": (12, 5212, 2), "val4aa": (8, 5213, 4),
-        "unc2": (12, 5214, 2), "unc4": (8, 5215, 4)}
+        "unc2": (12, 5214, 2), "unc4": (8, 5215, 4),
+        "val2ab": (12, 5216, 2), "val4ab": (8, 5217, 4),
+        "wb2": (12, 5218, 2, {"weak_background": 1.0}), "wb4": (8, 5219, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

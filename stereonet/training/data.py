@@ -60,7 +60,7 @@ class RandomShiftStereo(Dataset):
 
 def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: int, width: int,
                   supersample: int = 2, max_disp: int | None = None, shared_material: float = 0.0,
-                  drop_textures: tuple[str, ...] = ()) -> Dataset:
+                  drop_textures: tuple[str, ...] = (), weak_background: float = 0.0) -> Dataset:
     if source == "random-shift":
         return RandomShiftStereo(count, seed=seed, height=height, width=width, max_disp=max(1, width // 8))
     if source == "data_gen":
@@ -69,6 +69,8 @@ def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: i
         except ImportError as e:  # pragma: no cover - data_gen ships with stereonet
             raise ImportError("source: 'data_gen' needs the data_gen package (pip install -e .)") from e
         options = {"shared_material": float(shared_material)}  # 0: the same pairs as before the option existed
+        if weak_background:  # 0: the option is not passed (the same pairs and names as before it existed)
+            options["weak_background"] = float(weak_background)
         if drop_textures:  # the level's texture mix without these kinds (none dropped: the option is not passed)
             from data_gen.scene import texture_mix
 
@@ -249,9 +251,10 @@ class PooledCurriculumStream(IterableDataset):
                  augment: bool, difficulty, start, supersample: int = 2, disparity_range: int | None = None,
                  rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0,
                  extra: Dataset | None = None, extra_ratio: float = 0.0, vertical_warp: float = 0.0,
-                 shared_material: float = 0.0, drop_textures: tuple[str, ...] = ()) -> None:
+                 shared_material: float = 0.0, drop_textures: tuple[str, ...] = (),
+                 weak_background: float = 0.0) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
-        self.shared_material = float(shared_material)
+        self.shared_material, self.weak_background = float(shared_material), float(weak_background)
         self.drop_textures = tuple(drop_textures)
         self.extra, self.extra_ratio = extra, float(extra_ratio) if extra is not None else 0.0
         self.vertical_jitter, self.vertical_warp = float(vertical_jitter), float(vertical_warp)
@@ -275,7 +278,8 @@ class PooledCurriculumStream(IterableDataset):
                 level = int(self.difficulty.value)
                 max_disp = sample_max_disp(self.source, level, self.width, self.disparity_range, g)
                 ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height, self.width,
-                                   self.supersample, max_disp, self.shared_material, self.drop_textures)
+                                   self.supersample, max_disp, self.shared_material, self.drop_textures,
+                                   self.weak_background)
                 pool.append(ds[index])
                 pool = pool[-self.pool_size:]
             counter += 1
@@ -360,6 +364,10 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         drop_textures: texture kinds (``data_gen.textures.TEXTURE_KINDS``) left out of every level's mix in the
             rendered training pairs, e.g. ``[weak, flat]``: every training surface textured (data_gen's ``textures``
             option). Validation pairs keep the levels' mixes. Empty (the default): the same pairs as before.
+        weak_background: probability that a rendered training pair's background walls get a weaker texture
+            (``data_gen.render_pair``'s option: objects in front of weakly textured walls, where window matchers
+            fatten the foreground, as at most depth edges of photos; 0 = off, the default). Validation pairs are
+            rendered without it.
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
@@ -369,7 +377,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  augment: bool = True, supersample: int = 2, disparity_range: int | None = None,
                  vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0, train: str | None = None,
                  train_ratio: float = 0.5, vertical_warp: float = 0.0, val_vertical_warp: float = 0.0,
-                 shared_material: float = 0.0, drop_textures: list[str] | None = None) -> None:
+                 shared_material: float = 0.0, drop_textures: list[str] | None = None,
+                 weak_background: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters()
         from stereonet.checks import StereoInputError
@@ -384,9 +393,9 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                        f"leave every level a kind to draw, got {drop_textures!r}")
         self.drop_textures = tuple(drop_textures or ())
 
-        if isinstance(shared_material, bool) or not isinstance(shared_material, int | float) \
-                or not 0.0 <= shared_material <= 1.0:
-            raise StereoInputError(f"--data.shared_material: expected a probability in [0, 1], got {shared_material!r}")
+        for name, value in (("shared_material", shared_material), ("weak_background", weak_background)):
+            if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+                raise StereoInputError(f"--data.{name}: expected a probability in [0, 1], got {value!r}")
         if not 0.0 < train_ratio <= 1.0:
             raise StereoInputError(f"--data.train_ratio: expected a share in (0, 1], got {train_ratio}")
         self.train_extra = open_training_spec(train, height, width) if train else None
@@ -435,7 +444,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                         hp.disparity_range, rank=rank, world_size=world,
                                         vertical_jitter=hp.vertical_jitter, extra=self.train_extra,
                                         extra_ratio=hp.train_ratio, vertical_warp=hp.vertical_warp,
-                                        shared_material=hp.shared_material, drop_textures=self.drop_textures)
+                                        shared_material=hp.shared_material, drop_textures=self.drop_textures,
+                                        weak_background=hp.weak_background)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

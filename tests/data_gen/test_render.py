@@ -176,6 +176,7 @@ def test_dataset_workers_match_and_collate():
     (dict(supersample=0), "supersample"),
     (dict(shared_material=1.5), "shared_material"),
     (dict(shared_material="often"), "shared_material"),
+    (dict(weak_background=-0.5), "weak_background"),
     (dict(textures={"marble": 1.0}), "textures"),
     (dict(textures={"bank": -1.0}), "textures"),
     (dict(textures={"bank": 0.0}), "textures"),
@@ -356,3 +357,36 @@ def test_textures_option_replaces_the_levels_mix():
     assert tex["name"] == plain["name"] + "_tbank0.5-bank_mix0.5"
     item = data_gen.SyntheticStereo(2, seed=3, difficulty=2, height=H, width=W, textures=textured)[1]
     assert item["name"] == tex["name"] and torch.equal(item["left"], tex["left"])
+
+
+def test_weaken_background_scales_only_the_walls_contrast():
+    """weaken_background: with probability 1 every background wall's texture contrast is multiplied by one factor
+    in WEAK_BACKGROUND_FACTOR and the objects keep theirs; probability 0 draws nothing and changes nothing; a
+    rendered pair keeps its geometry and its name gets the option."""
+    from data_gen.scene import WEAK_BACKGROUND_FACTOR, weaken_background
+
+    def scene():
+        wall = data_gen.Plane([0, 0, 5000], [0, 0, 1], material=Material(kind="bank", contrast=0.8))
+        floor = data_gen.Plane([0, 800, 0], [0, -1, 0], material=Material(kind="checker", contrast=1.0))
+        ball = data_gen.Sphere([0, 0, 2000], 300.0, material=Material(kind="stripes", contrast=1.0))
+        return data_gen.Scene([wall, floor, ball], num_background=2)
+
+    s = scene()
+    before = [o.material for o in s.objects]
+    rng = np.random.default_rng(3)
+    weaken_background(s, rng, 0.0)
+    assert all(o.material is m for o, m in zip(s.objects, before))
+    assert rng.random() == np.random.default_rng(3).random()  # nothing drawn at 0
+    weaken_background(s, np.random.default_rng(3), 1.0)
+    f0, f1 = s.objects[0].material.contrast / 0.8, s.objects[1].material.contrast / 1.0
+    assert WEAK_BACKGROUND_FACTOR[0] <= f0 <= WEAK_BACKGROUND_FACTOR[1] and abs(f0 - f1) < 1e-12
+    assert s.objects[2].material is before[2] and before[0].contrast == 0.8  # objects and the old materials untouched
+    plain = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1)
+    weak = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1, weak_background=1.0)
+    zero = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1, weak_background=0.0)
+    assert torch.equal(zero["left"], plain["left"]) and zero["name"] == plain["name"]
+    assert torch.equal(weak["disparity"], plain["disparity"]) and not torch.equal(weak["left"], plain["left"])
+    assert weak["name"] == plain["name"] + "_w1"
+    walls = weak["scene"].num_background
+    for a, b in zip(plain["scene"].objects[:walls], weak["scene"].objects[:walls]):
+        assert b.material.contrast <= a.material.contrast * WEAK_BACKGROUND_FACTOR[1] + 1e-12

@@ -531,6 +531,28 @@ def test_shared_material_reaches_the_rendered_training_pairs_only():
         SyntheticStereoDataModule(source="data_gen", shared_material=2.0)
 
 
+def test_weak_background_reaches_the_rendered_training_pairs_only():
+    """``--data.weak_background``: the training stream renders the same pairs with weaker background walls (same
+    ground truth, other images); validation pairs are rendered without it; a value outside [0, 1] is a one-line
+    error naming the option."""
+    from stereonet.checks import StereoInputError
+    from stereonet.training.data import SyntheticStereoDataModule
+
+    def first(p):
+        dm = SyntheticStereoDataModule(source="data_gen", height=48, width=96, batch_size=1, pool_size=1, reuse=1,
+                                       val_pairs=1, supersample=1, augment=False, weak_background=p)
+        dm.setup("fit")
+        dm.set_progress(1.0)
+        return next(iter(dm.train_dataloader())), dm.val_items[0]
+
+    (plain, val_plain), (weak, val_weak) = first(0.0), first(1.0)
+    torch.testing.assert_close(weak["disparity"], plain["disparity"])
+    assert not torch.equal(weak["left"], plain["left"])
+    torch.testing.assert_close(val_weak["left"], val_plain["left"])
+    with pytest.raises(StereoInputError, match="--data.weak_background"):
+        SyntheticStereoDataModule(source="data_gen", weak_background=1.5)
+
+
 def test_drop_textures_reaches_the_rendered_training_pairs_only(monkeypatch):
     """``--data.drop_textures``: training pairs are rendered without those texture kinds (data_gen's ``textures``
     option: the level's mix less those kinds), validation pairs with the levels' mixes; an unknown kind, or one that
