@@ -509,48 +509,27 @@ def test_vertical_warp_varies_the_offset_across_the_image_and_keeps_ground_truth
     torch.testing.assert_close(plain_a["right"], plain_b["right"])
 
 
-def test_shared_material_reaches_the_rendered_training_pairs_only():
-    """``--data.shared_material``: the training stream renders the same pairs with objects re-dressed (same
-    ground truth, other images); validation pairs are rendered without it; a value outside [0, 1] is a
-    one-line error naming the option."""
+@pytest.mark.parametrize("option", ["shared_material", "weak_background"])
+def test_render_probability_reaches_the_rendered_training_pairs_only(option):
+    """``--data.shared_material`` (objects re-dressed) and ``--data.weak_background`` (weaker background walls): the
+    training stream renders the same pairs with other images (same ground truth); validation pairs are rendered
+    without it; a value outside [0, 1] is a one-line error naming the option."""
     from stereonet.checks import StereoInputError
     from stereonet.training.data import SyntheticStereoDataModule
 
     def first(p):
         dm = SyntheticStereoDataModule(source="data_gen", height=48, width=96, batch_size=1, pool_size=1, reuse=1,
-                                       val_pairs=1, supersample=1, augment=False, shared_material=p)
+                                       val_pairs=1, supersample=1, augment=False, **{option: p})
         dm.setup("fit")
         dm.set_progress(1.0)
         return next(iter(dm.train_dataloader())), dm.val_items[0]
 
-    (plain, val_plain), (shared, val_shared) = first(0.0), first(1.0)
-    torch.testing.assert_close(shared["disparity"], plain["disparity"])
-    assert not torch.equal(shared["left"], plain["left"])
-    torch.testing.assert_close(val_shared["left"], val_plain["left"])
-    with pytest.raises(StereoInputError, match="--data.shared_material"):
-        SyntheticStereoDataModule(source="data_gen", shared_material=2.0)
-
-
-def test_weak_background_reaches_the_rendered_training_pairs_only():
-    """``--data.weak_background``: the training stream renders the same pairs with weaker background walls (same
-    ground truth, other images); validation pairs are rendered without it; a value outside [0, 1] is a one-line
-    error naming the option."""
-    from stereonet.checks import StereoInputError
-    from stereonet.training.data import SyntheticStereoDataModule
-
-    def first(p):
-        dm = SyntheticStereoDataModule(source="data_gen", height=48, width=96, batch_size=1, pool_size=1, reuse=1,
-                                       val_pairs=1, supersample=1, augment=False, weak_background=p)
-        dm.setup("fit")
-        dm.set_progress(1.0)
-        return next(iter(dm.train_dataloader())), dm.val_items[0]
-
-    (plain, val_plain), (weak, val_weak) = first(0.0), first(1.0)
-    torch.testing.assert_close(weak["disparity"], plain["disparity"])
-    assert not torch.equal(weak["left"], plain["left"])
-    torch.testing.assert_close(val_weak["left"], val_plain["left"])
-    with pytest.raises(StereoInputError, match="--data.weak_background"):
-        SyntheticStereoDataModule(source="data_gen", weak_background=1.5)
+    (plain, val_plain), (changed, val_changed) = first(0.0), first(1.0)
+    torch.testing.assert_close(changed["disparity"], plain["disparity"])
+    assert not torch.equal(changed["left"], plain["left"])
+    torch.testing.assert_close(val_changed["left"], val_plain["left"])
+    with pytest.raises(StereoInputError, match=f"--data.{option}"):
+        SyntheticStereoDataModule(source="data_gen", **{option: 1.5})
 
 
 def test_drop_textures_reaches_the_rendered_training_pairs_only(monkeypatch):
