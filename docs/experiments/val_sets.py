@@ -24,7 +24,8 @@ speed), ``val2x``/``val4x`` on seeds 5206/5207 (its refine.pt retrained on that 
 edge share 0.75), ``val2z``/``val4z`` on seeds 5210/5211 (its 8-channel chooser), ``val2aa``/``val4aa`` on seeds 5212/5213 (the
 thirty-first session's cross-cost chooser), ``unc2``/``unc4`` on seeds 5214/5215 (its SMD uncertainty probe),
 ``val2ab``/``val4ab`` on seeds 5216/5217 and ``wb2``/``wb4`` (every scene's background walls weakly textured,
-``weak_background=1``) on seeds 5218/5219 (its weak-background chooser); any other spec as
+``weak_background=1``) on seeds 5218/5219 (its weak-background chooser), ``val2ac``/``val4ac`` on seeds
+5220/5221 and ``wb2b``/``wb4b`` on seeds 5222/5223 (its weak-background Siamese tower); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -61,7 +62,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2aa": (12, 5212, 2), "val4aa": (8, 5213, 4),
         "unc2": (12, 5214, 2), "unc4": (8, 5215, 4),
         "val2ab": (12, 5216, 2), "val4ab": (8, 5217, 4),
-        "wb2": (12, 5218, 2, {"weak_background": 1.0}), "wb4": (8, 5219, 4, {"weak_background": 1.0})}
+        "wb2": (12, 5218, 2, {"weak_background": 1.0}), "wb4": (8, 5219, 4, {"weak_background": 1.0}),
+        "val2ac": (12, 5220, 2), "val4ac": (8, 5221, 4),
+        "wb2b": (12, 5222, 2, {"weak_background": 1.0}), "wb4b": (8, 5223, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
