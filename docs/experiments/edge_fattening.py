@@ -11,10 +11,10 @@ import sys
 import torch
 
 sys.path.insert(0, "docs/experiments")
-from val_sets import load  # noqa: E402
+from val_sets import expand, items  # noqa: E402
 
 from stereonet import matchers  # noqa: E402
-from stereonet.evaluation import _batch, apply_fill, expand_data_specs  # noqa: E402
+from stereonet.evaluation import _batch, apply_fill  # noqa: E402
 from stereonet.models.siamese import edge_maps  # noqa: E402
 
 methods = [matchers.register_checkpoint_variant(arg) for arg in sys.argv[1].split(",")]
@@ -23,23 +23,20 @@ radius = int(sys.argv[3]) if len(sys.argv) > 3 else 4
 torch.set_num_threads(2)
 print("| set | method | near-edge pixels | near-edge bad-2 | of which the other side's value | of which larger than truth |")
 for group in groups:
-    specs = expand_data_specs(group) if group == "real" else [group]
+    specs = expand(group)
     counts = {m: [0, 0, 0, 0] for m in methods}
-    for spec in specs:
-        ds = load(spec)
-        for i in range(len(ds)):
-            item = ds[i]
-            left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
-            gt, gv = _batch(item["disparity"]).float(), _batch(item["valid"]).bool()
-            near, other = edge_maps(gt, gv, radius)
-            for m in methods:
-                d = apply_fill(matchers.match(m, left, right, int(item["max_disp"]))).disparity
-                wrong = ((d - gt).abs() > 2) & near
-                c = counts[m]
-                c[0] += int(near.sum())
-                c[1] += int(wrong.sum())
-                c[2] += int((wrong & ((d - other).abs() <= 2)).sum())
-                c[3] += int((wrong & (d > gt)).sum())
+    for _, item in items(specs):
+        left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
+        gt, gv = _batch(item["disparity"]).float(), _batch(item["valid"]).bool()
+        near, other = edge_maps(gt, gv, radius)
+        for m in methods:
+            d = apply_fill(matchers.match(m, left, right, int(item["max_disp"]))).disparity
+            wrong = ((d - gt).abs() > 2) & near
+            c = counts[m]
+            c[0] += int(near.sum())
+            c[1] += int(wrong.sum())
+            c[2] += int((wrong & ((d - other).abs() <= 2)).sum())
+            c[3] += int((wrong & (d > gt)).sum())
     for m, (n, w, o, f) in counts.items():
         print(f"| {group} | {m} | {n} | {100 * w / max(n, 1):.1f} | {100 * o / max(w, 1):.1f} | {100 * f / max(w, 1):.1f} |",
               flush=True)

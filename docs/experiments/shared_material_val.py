@@ -7,13 +7,13 @@ import statistics
 import sys
 
 sys.path.insert(0, "docs/experiments")
-from val_sets import load  # noqa: E402
+from val_sets import expand, load  # noqa: E402
 
 from stereonet import matchers  # noqa: E402
-from stereonet.evaluation import expand_data_specs, format_table, run_evaluation  # noqa: E402
+from stereonet.evaluation import format_table, run_evaluation  # noqa: E402
 
 methods = [matchers.register_checkpoint_variant(arg) for arg in sys.argv[1].split(",")]
-specs = [s for spec in sys.argv[2].split(";") for s in (expand_data_specs(spec) if spec == "real" else [spec])]
+specs = expand(sys.argv[2])
 ev = run_evaluation(methods, specs, fill=True, progress=False, load=load)
 print(format_table(ev.rows))
 table = {}

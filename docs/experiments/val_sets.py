@@ -68,6 +68,21 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
+def expand(arg):
+    """The specs of a ``"val2;val4;real"`` argument, ``real`` as its datasets (eval.py's expansion)."""
+    from stereonet.evaluation import expand_data_specs
+
+    return [s for spec in arg.split(";") for s in (expand_data_specs(spec) if spec == "real" else [spec])]
+
+
+def items(specs):
+    """``(spec, item)`` for every pair of every spec in ``specs``, in order."""
+    for spec in specs:
+        ds = load(spec)
+        for i in range(len(ds)):
+            yield spec, ds[i]
+
+
 def load(spec):
     if spec in SETS:
         count, seed, difficulty, *options = SETS[spec]
