@@ -25,7 +25,8 @@ edge share 0.75), ``val2z``/``val4z`` on seeds 5210/5211 (its 8-channel chooser)
 thirty-first session's cross-cost chooser), ``unc2``/``unc4`` on seeds 5214/5215 (its SMD uncertainty probe),
 ``val2ab``/``val4ab`` on seeds 5216/5217 and ``wb2``/``wb4`` (every scene's background walls weakly textured,
 ``weak_background=1``) on seeds 5218/5219 (its weak-background chooser), ``val2ac``/``val4ac`` on seeds
-5220/5221 and ``wb2b``/``wb4b`` on seeds 5222/5223 (its weak-background Siamese tower); any other spec as
+5220/5221 and ``wb2b``/``wb4b`` on seeds 5222/5223 (its weak-background Siamese tower), ``val2ad``/``val4ad`` on seeds
+5224/5225 and ``wb2c``/``wb4c`` on seeds 5226/5227 (the thirty-second session's class-balanced chooser); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -64,7 +65,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2ab": (12, 5216, 2), "val4ab": (8, 5217, 4),
         "wb2": (12, 5218, 2, {"weak_background": 1.0}), "wb4": (8, 5219, 4, {"weak_background": 1.0}),
         "val2ac": (12, 5220, 2), "val4ac": (8, 5221, 4),
-        "wb2b": (12, 5222, 2, {"weak_background": 1.0}), "wb4b": (8, 5223, 4, {"weak_background": 1.0})}
+        "wb2b": (12, 5222, 2, {"weak_background": 1.0}), "wb4b": (8, 5223, 4, {"weak_background": 1.0}),
+        "val2ad": (12, 5224, 2), "val4ad": (8, 5225, 4),
+        "wb2c": (12, 5226, 2, {"weak_background": 1.0}), "wb4c": (8, 5227, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

@@ -518,6 +518,15 @@ TARGETS = ("any", "keep", "decisive")
 """RefineModule's select-mode targets."""
 
 
+def balanced_nll(log_p: torch.Tensor, classes: torch.Tensor) -> torch.Tensor:
+    """Class-balanced negative log-likelihood: the mean over the classes present in ``classes`` of the mean of
+    ``-log_p`` over that class's samples (each class weighs the same whatever its share). 1-D inputs, one per
+    sample; at least one sample."""
+    present, inverse, counts = torch.unique(classes, return_inverse=True, return_counts=True)
+    weights = 1.0 / (counts[inverse].to(log_p.dtype) * len(present))
+    return -(log_p * weights).sum()
+
+
 class RefineModule(StereoModule):
     """Trains :class:`~stereonet.models.refine.RefineNet` on the classical ``sgm``'s maps of the training pairs.
 
@@ -546,6 +555,9 @@ class RefineModule(StereoModule):
         pair_ranges: run the base matchers with each pair's own ``max_disp`` where the batch carries it (True) or
             with ``max_disp`` for every pair (False: how the seventeenth session's ``refine.pt`` was trained, when
             training batches did not carry the field).
+        balance: ``select`` with target "keep" or "decisive" only: weigh the target classes (which candidate is the
+            target) equally in each batch, the loss being the mean over the classes present of each class's mean
+            cross-entropy (False: every pixel counts once, so the classes count by their frequency).
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
     """
 
@@ -554,12 +566,16 @@ class RefineModule(StereoModule):
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] = (1, 2, 4, 8, 1), max_disp: int = 64,
                  mode: str = "residual", radii: tuple[int, ...] = (1, 3, 9, 27), tolerance: float = 1.0,
                  target: str = "any", bases: tuple[str, ...] = ("sgm",), lr: float = 1e-3, weight_decay: float = 1e-4,
-                 schedule_steps: int = 5000, evidence: str = "pixel", pair_ranges: bool = True) -> None:
+                 schedule_steps: int = 5000, evidence: str = "pixel", pair_ranges: bool = True,
+                 balance: bool = False) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if not tolerance > 0:
             raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
         if target not in TARGETS:
             raise ValueError(f"target: expected one of {', '.join(TARGETS)}, got {target!r}")
+        if balance and (mode != "select" or target == "any"):
+            raise ValueError(f"balance: needs mode 'select' with target 'keep' or 'decisive', got mode {mode!r}, "
+                             f"target {target!r}")
         self.save_hyperparameters()
         self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii),
                                bases=tuple(bases), evidence=evidence)
@@ -598,13 +614,19 @@ class RefineModule(StereoModule):
             usable = gt_valid[:, 0] & right_ones.any(1)
             if self.hparams.target == "decisive":  # only where the choice matters: some candidates right, some not
                 usable &= ~right_ones.all(1)
+            index = None
             if self.hparams.target in ("keep", "decisive"):  # own value if right, else the closest right candidate
                 closest = (candidates - gt).abs().argmin(1)
                 index = torch.where(right_ones[:, 0], torch.zeros_like(closest), closest)
                 log_p = torch.log_softmax(scores, 1).gather(1, index[:, None])[:, 0]
             else:
                 log_p = torch.logsumexp(scores.masked_fill(~right_ones, -1e4), 1) - torch.logsumexp(scores, 1)
-            loss = -log_p[usable].mean() if bool(usable.any()) else scores.sum() * 0.0
+            if not bool(usable.any()):
+                loss = scores.sum() * 0.0
+            elif self.hparams.get("balance", False):
+                loss = balanced_nll(log_p[usable], index[usable])
+            else:
+                loss = -log_p[usable].mean()
             pred = candidates.gather(1, first_argmax(scores))
             oracle = candidates.gather(1, (candidates - gt).abs().argmin(1, keepdim=True))
             extra["oracle_bad2"] = disparity_errors(oracle, gt, gt_valid)["bad2"]

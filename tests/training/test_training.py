@@ -629,3 +629,34 @@ def test_refine_module_cross_evidence_starts_at_log_two_and_exports_it(one_threa
     first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 1e-2)
     assert final < first, (first, final)
     assert module.model_config()["evidence"] == "cross"
+
+
+def test_balanced_nll_weighs_each_class_equally():
+    """Two samples of class 0 and one of class 1: the mean of the two classes' means, not of the three samples;
+    one class alone is its plain mean."""
+    from stereonet.training.module import balanced_nll
+
+    log_p = torch.tensor([-1.0, -3.0, -8.0])
+    assert float(balanced_nll(log_p, torch.tensor([0, 0, 1]))) == pytest.approx((2.0 + 8.0) / 2)
+    assert float(balanced_nll(log_p, torch.tensor([1, 1, 1]))) == pytest.approx(4.0)
+
+
+def test_refine_module_balance_changes_the_loss_and_needs_a_one_target_choice(one_thread):
+    """balance=True on the decisive pixels: the untrained tie still costs log 2 per class, so the loss is log 2;
+    after a few steps the balanced and plain losses of the same network differ (the classes are not equally
+    frequent); balance with target "any" or residual mode is refused naming the option."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    kwargs = dict(channels=8, dilations=(1, 2), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"),
+                  target="decisive")
+    module = RefineModule(balance=True, **kwargs)
+    loss, _, _ = module.compute(batch)
+    assert abs(float(loss.detach()) - math.log(2)) < 1e-5
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 1e-2)
+    assert final < first, (first, final)
+    plain = RefineModule(**kwargs)
+    plain.model.load_state_dict(module.model.state_dict())
+    assert abs(float(plain.compute(batch)[0].detach()) - final) > 1e-4
+    for bad in (dict(target="any"), dict(mode="residual", target="keep")):
+        with pytest.raises(ValueError, match="balance"):
+            RefineModule(balance=True, **{**kwargs, **bad})
