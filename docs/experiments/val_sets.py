@@ -26,7 +26,10 @@ thirty-first session's cross-cost chooser), ``unc2``/``unc4`` on seeds 5214/5215
 ``val2ab``/``val4ab`` on seeds 5216/5217 and ``wb2``/``wb4`` (every scene's background walls weakly textured,
 ``weak_background=1``) on seeds 5218/5219 (its weak-background chooser), ``val2ac``/``val4ac`` on seeds
 5220/5221 and ``wb2b``/``wb4b`` on seeds 5222/5223 (its weak-background Siamese tower), ``val2ad``/``val4ad`` on seeds
-5224/5225 and ``wb2c``/``wb4c`` on seeds 5226/5227 (the thirty-second session's class-balanced chooser); any other spec as
+5224/5225 and ``wb2c``/``wb4c`` on seeds 5226/5227 (the thirty-second session's class-balanced chooser), ``wsel2``/``wsel4``
+on seeds 5228/5229 and ``wselb2``/``wselb4`` (weak_background 1) on seeds 5230/5231 (its weighted-median selection),
+``wmf2``/``wmf4`` on seeds 5232/5233 and ``wmfb2``/``wmfb4`` (weak_background 1) on seeds 5234/5235 (its
+confirmation); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -67,7 +70,11 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2ac": (12, 5220, 2), "val4ac": (8, 5221, 4),
         "wb2b": (12, 5222, 2, {"weak_background": 1.0}), "wb4b": (8, 5223, 4, {"weak_background": 1.0}),
         "val2ad": (12, 5224, 2), "val4ad": (8, 5225, 4),
-        "wb2c": (12, 5226, 2, {"weak_background": 1.0}), "wb4c": (8, 5227, 4, {"weak_background": 1.0})}
+        "wb2c": (12, 5226, 2, {"weak_background": 1.0}), "wb4c": (8, 5227, 4, {"weak_background": 1.0}),
+        "wsel2": (12, 5228, 2), "wsel4": (8, 5229, 4),
+        "wselb2": (12, 5230, 2, {"weak_background": 1.0}), "wselb4": (8, 5231, 4, {"weak_background": 1.0}),
+        "wmf2": (12, 5232, 2), "wmf4": (8, 5233, 4),
+        "wmfb2": (12, 5234, 2, {"weak_background": 1.0}), "wmfb4": (8, 5235, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

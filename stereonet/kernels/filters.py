@@ -154,3 +154,54 @@ def speckle_kernel(disp: np.ndarray, valid: np.ndarray, max_size: int, max_diff:
                     p = members[i]
                     out[p // w, p - (p // w) * w] = False
     return out
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)  # exact comparisons and exp
+def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarray, radius: int, sigma_color: float,
+                           sigma_space: float, min_range: float) -> np.ndarray:
+    """Joint weighted median of ``disp`` (H, W) float32 guided by ``guide`` (C, H, W) float32: see
+    :func:`stereonet.select.filters.weighted_median_filter` (same rule; weights and sums in float64)."""
+    C, H, W = guide.shape
+    out = disp.copy()
+    inv_c = -0.5 / (sigma_color * sigma_color)
+    inv_s = -0.5 / (sigma_space * sigma_space)
+    n_max = (2 * radius + 1) * (2 * radius + 1)
+    for y in numba.prange(H):
+        vals = np.empty(n_max, np.float32)
+        wts = np.empty(n_max, np.float64)
+        for x in range(W):
+            y0, y1 = max(y - radius, 0), min(y + radius, H - 1)
+            x0, x1 = max(x - radius, 0), min(x + radius, W - 1)
+            lo, hi = np.inf, -np.inf
+            for yy in range(y0, y1 + 1):
+                for xx in range(x0, x1 + 1):
+                    if valid[yy, xx]:
+                        v = np.float64(disp[yy, xx])
+                        lo = min(lo, v)
+                        hi = max(hi, v)
+            if not hi - lo > min_range:  # a smooth window (or no valid neighbour): unchanged
+                continue
+            n = 0
+            for yy in range(y0, y1 + 1):
+                for xx in range(x0, x1 + 1):
+                    if valid[yy, xx]:
+                        dc = 0.0
+                        for c in range(C):
+                            g = np.float64(guide[c, yy, xx]) - np.float64(guide[c, y, x])
+                            dc += g * g
+                        ds = np.float64((yy - y) * (yy - y) + (xx - x) * (xx - x))
+                        vals[n] = disp[yy, xx]
+                        wts[n] = np.exp(dc * inv_c + ds * inv_s)
+                        n += 1
+            order = np.argsort(vals[:n], kind="mergesort")  # stable: ties keep their raster order
+            total = 0.0
+            for k in range(n):
+                total += wts[order[k]]
+            half = 0.5 * total
+            acc = 0.0
+            for k in range(n):
+                acc += wts[order[k]]
+                if acc >= half:
+                    out[y, x] = vals[order[k]]
+                    break
+    return out
