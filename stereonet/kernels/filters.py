@@ -158,7 +158,7 @@ def speckle_kernel(disp: np.ndarray, valid: np.ndarray, max_size: int, max_diff:
 
 @numba.njit(parallel=True, cache=True, fastmath=False)  # exact comparisons and exp
 def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarray, radius: int, sigma_color: float,
-                           sigma_space: float, min_range: float) -> np.ndarray:
+                           sigma_space: float, jump: float) -> np.ndarray:
     """Joint weighted median of ``disp`` (H, W) float32 guided by ``guide`` (C, H, W) float32: see
     :func:`stereonet.select.filters.weighted_median_filter` (same rule; weights and sums in float64)."""
     C, H, W = guide.shape
@@ -166,21 +166,31 @@ def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarra
     inv_c = -0.5 / (sigma_color * sigma_color)
     inv_s = -0.5 / (sigma_space * sigma_space)
     n_max = (2 * radius + 1) * (2 * radius + 1)
+    edge = np.zeros((H, W), np.bool_)  # a step of more than `jump` px to the right or downward neighbour
+    for y in numba.prange(H):
+        for x in range(W):
+            if valid[y, x]:
+                v = np.float64(disp[y, x])
+                if x + 1 < W and valid[y, x + 1] and abs(np.float64(disp[y, x + 1]) - v) > jump:
+                    edge[y, x] = True
+                if y + 1 < H and valid[y + 1, x] and abs(np.float64(disp[y + 1, x]) - v) > jump:
+                    edge[y, x] = True
+    near = np.zeros((H, W), np.bool_)  # an edge pixel within the window (Chebyshev radius)
+    for y in numba.prange(H):
+        for x in range(W):
+            hit = False
+            for yy in range(max(y - radius, 0), min(y + radius, H - 1) + 1):
+                for xx in range(max(x - radius, 0), min(x + radius, W - 1) + 1):
+                    hit |= edge[yy, xx]
+            near[y, x] = hit
     for y in numba.prange(H):
         vals = np.empty(n_max, np.float32)
         wts = np.empty(n_max, np.float64)
         for x in range(W):
+            if not near[y, x]:  # no discontinuity in the window: unchanged
+                continue
             y0, y1 = max(y - radius, 0), min(y + radius, H - 1)
             x0, x1 = max(x - radius, 0), min(x + radius, W - 1)
-            lo, hi = np.inf, -np.inf
-            for yy in range(y0, y1 + 1):
-                for xx in range(x0, x1 + 1):
-                    if valid[yy, xx]:
-                        v = np.float64(disp[yy, xx])
-                        lo = min(lo, v)
-                        hi = max(hi, v)
-            if not hi - lo > min_range:  # a smooth window (or no valid neighbour): unchanged
-                continue
             n = 0
             for yy in range(y0, y1 + 1):
                 for xx in range(x0, x1 + 1):
@@ -193,6 +203,8 @@ def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarra
                         vals[n] = disp[yy, xx]
                         wts[n] = np.exp(dc * inv_c + ds * inv_s)
                         n += 1
+            if n == 0:
+                continue
             order = np.argsort(vals[:n], kind="mergesort")  # stable: ties keep their raster order
             total = 0.0
             for k in range(n):

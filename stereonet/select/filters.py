@@ -84,16 +84,17 @@ def speckle_filter(disp: torch.Tensor, valid: torch.Tensor, max_size: int = 100,
 
 def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int = 7, sigma_color: float = 0.1,
                            sigma_space: float | None = None, valid: torch.Tensor | None = None,
-                           min_range: float = 1.0, backend: str = "auto") -> torch.Tensor:
+                           jump: float = 1.0, backend: str = "auto") -> torch.Tensor:
     """Joint weighted median filter guided by the image (the textbook post-step against foreground fattening).
 
     Each pixel takes the weighted median of the disparities in its ``(2 radius + 1)²`` window (clipped at the
     border; only ``valid`` neighbours vote), the weight of neighbour q of pixel p being
     ``exp(-|I_p - I_q|² / (2 sigma_color²) - |p - q|² / (2 sigma_space²))`` with ``I`` the guide's channels.
     Near a depth edge that lies on an intensity edge, a pixel's votes come mostly from its own side, so a band of
-    the foreground's disparity fattened into the background is voted back to the background's. Pixels whose
-    window's valid disparities span ``min_range`` px or less are left unchanged (the filter acts near
-    discontinuities only; elsewhere a median would only blur sub-pixel slopes). The weighted median is the
+    the foreground's disparity fattened into the background is voted back to the background's. Only pixels with
+    a discontinuity of the map in their window are filtered (two valid 4-neighbours differing by more than
+    ``jump`` px, the metrics' depth-edge rule); the others are unchanged (elsewhere a median would only blur
+    sub-pixel slopes). The weighted median is the
     smallest window value at which the cumulative weight (values in ascending order, ties in raster order)
     reaches half the total; weights and sums in float64.
 
@@ -105,7 +106,7 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         sigma_space: spatial scale in pixels (> 0); ``None`` = ``radius``.
         valid: optional bool :math:`(B, 1, H, W)`: only valid pixels vote (every output pixel is defined; a pixel
             without valid neighbours keeps its value).
-        min_range: the disparity span (px) a window must exceed to be filtered.
+        jump: the step (px) between 4-neighbours that makes a discontinuity.
         backend: ``"auto"`` (numba for CPU input without gradient), ``"torch"`` or ``"numba"``.
 
     Returns:
@@ -121,8 +122,8 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
     for name, value in (("sigma_color", sigma_color), ("sigma_space", sigma_space)):
         if not value > 0:
             raise StereoInputError(f"{name}: expected a value > 0, got {value!r}")
-    if not min_range >= 0:
-        raise StereoInputError(f"min_range: expected a value >= 0 pixels, got {min_range!r}")
+    if not jump >= 0:
+        raise StereoInputError(f"jump: expected a value >= 0 pixels, got {jump!r}")
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     if valid is None:
@@ -132,13 +133,13 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         g = guide.detach().to("cpu", torch.float32).numpy()
         v = valid.detach().cpu().numpy().astype(np.bool_)
         out = np.stack([weighted_median_kernel(d[b, 0], np.ascontiguousarray(g[b]), v[b, 0], int(radius),
-                                               float(sigma_color), float(sigma_space), float(min_range))
+                                               float(sigma_color), float(sigma_space), float(jump))
                         for b in range(d.shape[0])])[:, None]
         return torch.from_numpy(out).to(disp.device, disp.dtype)
-    return _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, min_range)
+    return _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump)
 
 
-def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, min_range):
+def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump):
     """The reference of :func:`weighted_median_filter` (unfolded windows, float64 weights; memory ~ 8 (2r+1)² H W)."""
     b, c, h, w = guide.shape
     k = 2 * radius + 1
@@ -151,9 +152,14 @@ def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space,
     space = (ky.reshape(-1) ** 2 + kx.reshape(-1) ** 2).to(torch.float64).view(1, k * k, 1)
     weights = torch.exp(diff.pow(2).sum(1) * (-0.5 / sigma_color ** 2) + space * (-0.5 / sigma_space ** 2))
     weights = weights.masked_fill(~votes, 0.0)
-    lo = vals.masked_fill(~votes, float("inf")).amin(1)
-    hi = vals.masked_fill(~votes, float("-inf")).amax(1)
-    active = (hi.to(torch.float64) - lo.to(torch.float64)) > min_range
+    d64 = d.to(torch.float64)
+    edge = torch.zeros_like(valid)
+    step_x = ((d64[..., 1:] - d64[..., :-1]).abs() > jump) & valid[..., 1:] & valid[..., :-1]
+    step_y = ((d64[..., 1:, :] - d64[..., :-1, :]).abs() > jump) & valid[..., 1:, :] & valid[..., :-1, :]
+    edge[..., :-1] |= step_x
+    edge[..., :-1, :] |= step_y
+    near = F.max_pool2d(edge.to(torch.float32), k, 1, radius) > 0
+    active = near.flatten(2)[:, 0] & votes.any(1)
     order = vals.masked_fill(~votes, float("inf")).sort(dim=1, stable=True).indices
     sorted_w = weights.gather(1, order)
     cum = sorted_w.cumsum(1)

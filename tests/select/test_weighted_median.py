@@ -1,0 +1,63 @@
+"""The image-guided weighted median filter (stereonet.select.filters.weighted_median_filter)."""
+
+import pytest
+import torch
+
+from stereonet.checks import StereoInputError
+from stereonet.select.filters import weighted_median_filter
+
+
+def _fattened(h=24, w=40, edge=20, band=2):
+    """A guide with an intensity step at ``edge`` (dark background left, bright foreground right) and a disparity
+    map whose foreground value (10) reaches ``band`` px into the background (2)."""
+    guide = torch.full((1, 1, h, w), 0.2)
+    guide[..., edge:] = 0.8
+    disp = torch.full((1, 1, h, w), 2.0)
+    disp[..., edge - band:] = 10.0
+    return disp, guide
+
+
+def test_fattened_band_is_voted_back_to_the_background_and_the_edge_stays_sharp():
+    disp, guide = _fattened()
+    out = weighted_median_filter(disp, guide, radius=7, sigma_color=0.1)
+    assert torch.equal(out[..., :20], torch.full_like(out[..., :20], 2.0))
+    assert torch.equal(out[..., 20:], torch.full_like(out[..., 20:], 10.0))
+    # without the guide's help (the same colour on both sides) the band is not all recovered: the guide does it
+    flat = weighted_median_filter(disp, torch.full_like(guide, 0.5), radius=7, sigma_color=0.1)
+    assert bool((flat[..., 18:20] == 10.0).all())
+
+
+def test_no_discontinuity_means_no_change():
+    """A slope (0.5 px per pixel, below the 1 px step) is left exactly as it is."""
+    disp = (torch.arange(40, dtype=torch.float32) * 0.5).expand(1, 1, 24, 40).clone()
+    guide = torch.rand(1, 3, 24, 40, generator=torch.Generator().manual_seed(0))
+    assert torch.equal(weighted_median_filter(disp, guide, radius=4), disp)
+    # with a smaller jump the same slope counts as steps and is filtered
+    assert not torch.equal(weighted_median_filter(disp, guide, radius=4, jump=0.25, sigma_color=1.0), disp)
+
+
+@pytest.mark.parametrize("channels,with_valid,radius", [(1, False, 3), (3, True, 5), (3, False, 9)])
+def test_numba_equals_torch(channels, with_valid, radius):
+    """Equal on shapes smaller and larger than the window, with and without invalid (non-voting) pixels."""
+    g = torch.Generator().manual_seed(channels + radius)
+    for h, w in ((7, 11), (33, 47)):
+        disp = torch.rand(2, 1, h, w, generator=g) * 4
+        disp[..., w // 2:] += 6
+        guide = torch.rand(2, channels, h, w, generator=g)
+        guide[..., w // 2:] += 0.4
+        valid = (torch.rand(2, 1, h, w, generator=g) > 0.3) if with_valid else None
+        a = weighted_median_filter(disp, guide, radius=radius, sigma_color=0.3, valid=valid, backend="numba")
+        b = weighted_median_filter(disp, guide, radius=radius, sigma_color=0.3, valid=valid, backend="torch")
+        assert torch.equal(a, b)
+        assert not torch.equal(a, disp)  # it did filter
+
+
+def test_bad_input_names_the_argument():
+    disp, guide = _fattened()
+    for kwargs, name in ((dict(radius=0), "radius"), (dict(radius=2.5), "radius"), (dict(sigma_color=0.0), "sigma_color"),
+                         (dict(sigma_space=-1.0), "sigma_space"), (dict(jump=-1.0), "jump"),
+                         (dict(backend="cuda"), "backend")):
+        with pytest.raises(StereoInputError, match=name):
+            weighted_median_filter(disp, guide, **kwargs)
+    with pytest.raises(StereoInputError, match="guide"):
+        weighted_median_filter(disp, guide[..., :-1])
