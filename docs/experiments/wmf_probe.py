@@ -21,7 +21,7 @@ from stereonet.types import StereoOutput  # noqa: E402
 methods = [matchers.register_checkpoint_variant(a) for a in sys.argv[1].split(",")]
 specs = expand(sys.argv[2])
 settings = sys.argv[3].split(",")
-rows = {}
+rows, pairs = {}, {}
 for spec, item in items(specs):
     left, right = item["left"][None], item["right"][None]
     md = int(item["max_disp"])
@@ -42,6 +42,7 @@ for spec, item in items(specs):
             err = d - gt
             bad = near & (err.abs() > 2)
             fat = float((bad & (err > 0)).sum()) / max(1, int(bad.sum()))
+            pairs.setdefault((m, s), []).append((spec, item.get("name", "?"), met["bad2"]))
             rows.setdefault((m, s, spec), []).append((met["bad2"], met["epe"], met["see"],
                                                       100.0 * float(bad.sum()) / max(1, int(near.sum())), 100 * fat))
 print("| method | wmf | set | pairs | mean bad-2 | mean EPE | mean SEE | near-edge bad-2 | fattening share |")
@@ -51,3 +52,6 @@ for (m, s, spec), vals in rows.items():
     print(f"| {m} | {s} | {spec} | {len(vals)} | {statistics.fmean(v[0] for v in vals):.2f} | "
           f"{statistics.fmean(v[1] for v in vals):.3f} | {statistics.fmean(see) if see else float('nan'):.3f} | "
           f"{statistics.fmean(v[3] for v in vals):.1f} | {statistics.fmean(v[4] for v in vals):.1f} |")
+print("| method | wmf | each pair's bad-2 (in order) | median |")
+for (m, s), vals in pairs.items():
+    print(f"| {m} | {s} | {' / '.join(f'{v[2]:.2f}' for v in vals)} | {statistics.median(v[2] for v in vals):.2f} |")

@@ -351,27 +351,46 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     return result
 
 
+# sgm-refine's weighted median after the choice: radius 9 px, colour scale 0.2, chosen on fresh data_gen sets only
+# (docs/experiments/wmf.txt: selection on wsel2/wsel4/wselb2/wselb4, confirmed on wmf2/wmf4/wmfb2/wmfb4)
+WMF_RADIUS = 9
+WMF_SIGMA_COLOR = 0.2
+
+
 @register("sgm-refine", kind="learned", needs_weights=True,
           description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt)")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
-                       backend: str = "torch", **options) -> StereoOutput:
+                       backend: str = "torch", wmf_radius: int = WMF_RADIUS, wmf_sigma_color: float = WMF_SIGMA_COLOR,
+                       **options) -> StereoOutput:
     """The maps of the weights file's base matchers (its ``bases``; options go to ``sgm``), each with its invalid
     pixels filled, then :class:`~stereonet.models.refine.RefineNet` reads the images and the maps with their
     validity and confidence and returns, per pixel, a residual on the map or (``select`` files) one of the
     candidate values. The shipped ``refine.pt`` chooses between ``siamese-census-sgm`` and ``sgm`` at each pixel
-    (model card, seventeenth session); older files refine ``sgm`` alone. Every pixel is valid; the confidence is
-    the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
+    (model card, seventeenth session); older files refine ``sgm`` alone. Then, unless ``wmf_radius`` is 0, the
+    image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, radius ``wmf_radius``,
+    ``wmf_sigma_color``) near the map's discontinuities, against foreground fattening (model card, thirty-second
+    session); ``extras["unfiltered"]`` keeps the choice's own map. Every pixel is valid; the confidence is the first
+    map's (the choice does not re-rank it). ``backend``: "torch" only."""
+    from stereonet.select.filters import weighted_median_filter
+
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
+    if isinstance(wmf_radius, bool) or not isinstance(wmf_radius, int) or wmf_radius < 0:
+        raise StereoInputError(f"wmf_radius: expected an integer >= 0 (0 = no weighted median), got {wmf_radius!r}")
+    if not wmf_sigma_color > 0:
+        raise StereoInputError(f"wmf_sigma_color: expected a value > 0, got {wmf_sigma_color!r}")
     net = load_network("refine", checkpoint)
     cross = getattr(net, "evidence", "pixel") == "cross"
     base, valid, confidence, *costs = refine_bases(net.bases, left, right, max_disp, cross=cross, **options)
     dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
         disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),
-                                   max_disp, costs[0].to(dtype) if cross else None)
-    return StereoOutput(disp.to(left.dtype), torch.ones_like(valid[:, :1]), confidence=confidence[:, :1],
-                        extras={"base": base[:, :1]})
+                                   max_disp, costs[0].to(dtype) if cross else None).to(left.dtype)
+    extras = {"base": base[:, :1]}
+    if wmf_radius:
+        extras["unfiltered"] = disp
+        disp = weighted_median_filter(disp, left, radius=wmf_radius, sigma_color=wmf_sigma_color)
+    return StereoOutput(disp, torch.ones_like(valid[:, :1]), confidence=confidence[:, :1], extras=extras)
 
 
 @register("sgm-penalties", kind="learned", needs_weights=True,

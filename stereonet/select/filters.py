@@ -9,7 +9,12 @@ import torch.nn.functional as F
 
 from stereonet.checks import StereoInputError, check_shape, check_window
 from stereonet.kernels import use_numba
-from stereonet.kernels.filters import median_kernel, speckle_kernel, weighted_median_kernel
+from stereonet.kernels.filters import (
+    WMF_MIN_LOG_WEIGHT,
+    median_kernel,
+    speckle_kernel,
+    weighted_median_kernel,
+)
 
 
 def median_filter(disp: torch.Tensor, size: int = 3, valid: torch.Tensor | None = None,
@@ -96,7 +101,9 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
     ``jump`` px, the metrics' depth-edge rule); the others are unchanged (elsewhere a median would only blur
     sub-pixel slopes). The weighted median is the
     smallest window value at which the cumulative weight (values in ascending order, ties in raster order)
-    reaches half the total; weights and sums in float64.
+    reaches half the total; weights and sums in float64, log-weights floored at
+    :data:`~stereonet.kernels.filters.WMF_MIN_LOG_WEIGHT` (-45; a pixel's own weight is 1, so the floor only
+    matters where the centre pixel does not vote).
 
     Args:
         disp: :math:`(B, 1, H, W)`.
@@ -150,7 +157,8 @@ def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space,
     diff = F.unfold(g, k, padding=radius).view(b, c, k * k, h * w) - g.view(b, c, 1, h * w)
     ky, kx = torch.meshgrid(torch.arange(k) - radius, torch.arange(k) - radius, indexing="ij")
     space = (ky.reshape(-1) ** 2 + kx.reshape(-1) ** 2).to(torch.float64).view(1, k * k, 1)
-    weights = torch.exp(diff.pow(2).sum(1) * (-0.5 / sigma_color ** 2) + space * (-0.5 / sigma_space ** 2))
+    log_w = diff.pow(2).sum(1) * (-0.5 / sigma_color ** 2) + space * (-0.5 / sigma_space ** 2)
+    weights = torch.exp(log_w.clamp(min=WMF_MIN_LOG_WEIGHT))
     weights = weights.masked_fill(~votes, 0.0)
     d64 = d.to(torch.float64)
     edge = torch.zeros_like(valid)

@@ -132,7 +132,7 @@ def test_sgm_refine_matcher_runs_from_a_weights_file(tmp_path):
     loaded, info = load_weights(path, expected="refine")
     assert info["model"] == "refine" and isinstance(loaded, RefineNet)
     left, right = _pair(32, 64, 4)
-    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
     base, valid, _ = sgm_base(left, right, 16)
     assert bool(out.valid.all())
     assert torch.equal(out.disparity, base)  # untrained: sgm's filled map, every pixel
@@ -151,12 +151,12 @@ def test_sgm_refine_matcher_runs_a_selection_file(tmp_path):
     path = tmp_path / "refine.pt"
     save_weights(path, "refine", {"channels": 4, "dilations": [1, 2], "mode": "select", "radii": [1, 3]}, net)
     left, right = _pair(32, 64, 4)
-    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
     base, _, _ = sgm_base(left, right, 16)
     assert torch.equal(out.disparity, base) and bool(out.valid.all())
     torch.nn.init.normal_(net.score_out.weight)  # any scores: the output is one of the candidates at each pixel
     save_weights(path, "refine", {"channels": 4, "dilations": [1, 2], "mode": "select", "radii": [1, 3]}, net)
-    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
     cands = torch.cat([shift(base, dy, dx) for dy, dx in candidate_offsets((1, 3))], 1)
     assert bool(((cands - out.disparity).abs() < 1e-6).any(1).all())
 
@@ -170,7 +170,7 @@ def test_sgm_refine_follows_the_input_dtype(tmp_path, dtype):
     for config in ({"channels": 4, "dilations": [1]}, {"channels": 4, "dilations": [1], "mode": "select", "radii": [2]}):
         path = tmp_path / "refine.pt"
         save_weights(path, "refine", config, RefineNet(**config))
-        out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+        out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
         assert out.disparity.dtype == out.confidence.dtype == dtype and out.valid.dtype == torch.bool
 
 
@@ -216,7 +216,7 @@ def test_sgm_refine_matcher_runs_a_two_map_selection_file(tmp_path):
     path = tmp_path / "refine.pt"
     save_weights(path, "refine", config, net)
     left, right = _pair(32, 64, 4)
-    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
     maps, valid, conf = refine_bases(("siamese-census-sgm", "sgm"), left, right, 16)
     assert maps.shape[1] == valid.shape[1] == conf.shape[1] == 2
     assert torch.equal(out.disparity, maps[:, :1]) and bool(out.valid.all())
@@ -224,7 +224,7 @@ def test_sgm_refine_matcher_runs_a_two_map_selection_file(tmp_path):
     torch.nn.init.normal_(net.score_out.weight)
     torch.nn.init.normal_(net.score_out.bias)
     save_weights(path, "refine", config, net)
-    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
     cands = torch.cat([shift(maps[:, m:m + 1], dy, dx) for m in range(2) for dy, dx in candidate_offsets((2,))], 1)
     assert bool(((cands - out.disparity).abs() < 1e-6).any(1).all())
 
@@ -386,7 +386,7 @@ def test_cross_evidence_reads_every_base_and_keeps_the_untrained_choice(tmp_path
     path = tmp_path / "refine.pt"
     save_weights(path, "refine", config, cross)
     assert load_network("refine", str(path)).evidence == "cross"
-    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
     expected = cross(left, right, maps, valid, conf, 16, costs)
     assert torch.equal(out.disparity, expected)
     with pytest.raises(StereoInputError, match="evidence"):
@@ -410,3 +410,32 @@ def test_siamese_census_sgm_keeps_its_fixed_aggregate():
     assert acc.dtype == torch.int16 and fixed.cost_volume is None
     assert torch.equal(acc.float() / scale.float(), kept.cost_volume)
     assert torch.equal(fixed.disparity, out.disparity) and torch.equal(fixed.valid, out.valid)
+
+
+def test_sgm_refine_ends_with_the_weighted_median_of_its_choice(tmp_path):
+    """By default the matcher's map is the image-guided weighted median (WMF_RADIUS, WMF_SIGMA_COLOR) of the
+    choice, which extras["unfiltered"] keeps and wmf_radius=0 returns; other settings reach the filter; bad
+    settings are one-line errors naming the option."""
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import WMF_RADIUS, WMF_SIGMA_COLOR
+    from stereonet.select.filters import weighted_median_filter
+
+    config = {"channels": 4, "dilations": [1], "mode": "select", "radii": [2], "bases": ["siamese-census-sgm", "sgm"]}
+    net = RefineNet(**config)
+    torch.nn.init.normal_(net.score_out.weight, generator=torch.Generator().manual_seed(0))
+    path = tmp_path / "refine.pt"
+    save_weights(path, "refine", config, net)
+    left, right = _pair(40, 72, 2)
+    far_left, far_right = _pair(40, 72, 9)
+    left[..., 28:], right[..., 28:] = 0.5 * far_left[..., 28:] + 0.25, 0.5 * far_right[..., 28:] + 0.25  # a nearer, duller band
+    plain = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path))
+    assert torch.equal(out.extras["unfiltered"], plain.disparity)
+    expected = weighted_median_filter(plain.disparity, left, radius=WMF_RADIUS, sigma_color=WMF_SIGMA_COLOR)
+    assert torch.equal(out.disparity, expected) and not torch.equal(out.disparity, plain.disparity)
+    other = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=3, wmf_sigma_color=0.05)
+    assert torch.equal(other.disparity, weighted_median_filter(plain.disparity, left, radius=3, sigma_color=0.05))
+    for bad, name in (({"wmf_radius": -1}, "wmf_radius"), ({"wmf_radius": 1.5}, "wmf_radius"),
+                      ({"wmf_sigma_color": 0.0}, "wmf_sigma_color")):
+        with pytest.raises(StereoInputError, match=name):
+            match("sgm-refine", left, right, 16, checkpoint=str(path), **bad)
