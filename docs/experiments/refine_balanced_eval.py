@@ -2,8 +2,10 @@
 refine.pt, both without the weighted median (as the rule was written, before sgm-refine had it) and with it
 (information). Run: python docs/experiments/refine_balanced_eval.py "wb2c;wb4c;val2ad;val4ad" (or "real")."""
 import sys
+
 sys.path.insert(0, "docs/experiments")
 from val_sets import compare
+
 from stereonet.matchers.learned import sgm_refine_matcher
 
 bal = "docs/experiments/weights/sgm_refine_balanced.pt"
