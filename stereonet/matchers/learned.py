@@ -358,7 +358,7 @@ WMF_SIGMA_COLOR = 0.2
 
 
 @register("sgm-refine", kind="learned", needs_weights=True,
-          description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt)")
+          description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt), then an image-guided weighted median")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                        backend: str = "torch", wmf_radius: int = WMF_RADIUS, wmf_sigma_color: float = WMF_SIGMA_COLOR,
                        **options) -> StereoOutput:
