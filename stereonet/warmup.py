@@ -5,8 +5,9 @@
 ``make setup`` runs it. The kernels are ``cache=True``: numba writes the machine code beside the sources
 (``__pycache__/*.nbi|nbc``) and every later process loads it instead of compiling (about 25 s on 2 cores for
 the whole set). Each classical matcher runs once with its default options on a tiny pair, in float32 (what
-``infer.py``/``eval.py`` use), plus the learned matchers' cost kernels, the shared occlusion fill and a tiny data_gen render. A kernel whose source
-changes is recompiled by numba on its next call, as before.
+``infer.py``/``eval.py`` use), plus the learned matchers' cost kernels, the shared occlusion fill, the weighted median
+(sgm-refine's last step) and a tiny data_gen render. A kernel whose source changes is recompiled by numba on its next
+call, as before.
 """
 
 from __future__ import annotations
@@ -60,6 +61,14 @@ def warm_up(verbose: bool = True) -> list[tuple[str, float]]:
         apply_fill(out)
 
     step("fill", fill)
+
+    def weighted_median():  # sgm-refine's last step (any map; float32 disparity and guide, the matcher's input)
+        from stereonet.select.filters import weighted_median_filter
+
+        out = matchers.match("sgm", left, right, 16)
+        weighted_median_filter(out.disparity, left, valid=out.valid)
+
+    step("weighted median", weighted_median)
 
     def render():
         import data_gen
