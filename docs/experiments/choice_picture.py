@@ -20,7 +20,7 @@ item = load("val2b")[0]
 left, right = item["left"][None], item["right"][None]
 gt, gt_valid, max_disp = item["disparity"][None], item["valid"][None], int(item["max_disp"])
 maps, _, _ = refine_bases(("siamese-census-sgm", "sgm"), left, right, max_disp)
-chosen = sgm_refine_matcher(left, right, max_disp).disparity
+chosen = sgm_refine_matcher(left, right, max_disp, wmf_radius=0).disparity  # the choice itself, before its filter
 took_sgm = (chosen == maps[:, 1:]) & (chosen != maps[:, :1])
 rgb = (left[0].permute(1, 2, 0).numpy() * 255).astype(np.uint8)
 mask = np.repeat((took_sgm[0, 0].numpy() * 255).astype(np.uint8)[..., None], 3, axis=2)

@@ -20,7 +20,7 @@ for spec in ["val2i", "val4i", "real"]:
     for i in range(len(ds)):
         item = ds[i]
         left, right, max_disp = item["left"][None].float(), item["right"][None].float(), int(item["max_disp"])
-        out = matchers.match("sgm-refine", left, right, max_disp)
+        out = matchers.match("sgm-refine", left, right, max_disp, wmf_radius=0)  # the choice, before its filter
         s = matchers.match("sgm", left, right, max_disp)
         c = matchers.match("siamese-census-sgm", left, right, max_disp)
         sd, cd = fill_occlusions(s.disparity, s.valid), fill_occlusions(c.disparity, c.valid)

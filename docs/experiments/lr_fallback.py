@@ -23,7 +23,7 @@ def fallback(left, right, max_disp, learned="sgm-refine"):
     """``sgm`` where its raw output is valid (left-right check passed), the learned map (filled) elsewhere."""
     base = sgm(left, right, max_disp)
     if learned == "sgm-refine":
-        other = sgm_refine_matcher(left, right, max_disp)
+        other = sgm_refine_matcher(left, right, max_disp, wmf_radius=0)  # as measured (eighteenth session)
     else:
         other = siamese_census_sgm_matcher(left, right, max_disp)
     other_disp = other.disparity if bool(other.valid.all()) else fill_occlusions(other.disparity, other.valid)
