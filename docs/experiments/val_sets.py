@@ -29,7 +29,8 @@ thirty-first session's cross-cost chooser), ``unc2``/``unc4`` on seeds 5214/5215
 5224/5225 and ``wb2c``/``wb4c`` on seeds 5226/5227 (the thirty-second session's class-balanced chooser), ``wsel2``/``wsel4``
 on seeds 5228/5229 and ``wselb2``/``wselb4`` (weak_background 1) on seeds 5230/5231 (its weighted-median selection),
 ``wmf2``/``wmf4`` on seeds 5232/5233 and ``wmfb2``/``wmfb4`` (weak_background 1) on seeds 5234/5235 (its
-confirmation); any other spec as
+confirmation), ``val2ae``/``val4ae`` on seeds 5236/5237 and ``wb2d``/``wb4d`` (weak_background 1) on seeds 5238/5239
+(the chooser on filtered maps); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -74,7 +75,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "wsel2": (12, 5228, 2), "wsel4": (8, 5229, 4),
         "wselb2": (12, 5230, 2, {"weak_background": 1.0}), "wselb4": (8, 5231, 4, {"weak_background": 1.0}),
         "wmf2": (12, 5232, 2), "wmf4": (8, 5233, 4),
-        "wmfb2": (12, 5234, 2, {"weak_background": 1.0}), "wmfb4": (8, 5235, 4, {"weak_background": 1.0})}
+        "wmfb2": (12, 5234, 2, {"weak_background": 1.0}), "wmfb4": (8, 5235, 4, {"weak_background": 1.0}),
+        "val2ae": (12, 5236, 2), "val4ae": (8, 5237, 4),
+        "wb2d": (12, 5238, 2, {"weak_background": 1.0}), "wb4d": (8, 5239, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
