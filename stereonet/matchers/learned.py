@@ -316,16 +316,20 @@ def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_optio
 
 
 def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, cross: bool = False,
-                 **sgm_options):
+                 wmf: tuple[int, float] | None = None, **sgm_options):
     """The maps of the matchers ``bases`` (:data:`stereonet.models.refine.BASES`) as a RefineNet reads them:
     each filled by the shared rule, stacked along the channels as ``(disparity, valid, confidence)``, each
     :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; the Siamese matchers run with the shipped weights.
     ``cross``: the SGM-family bases (:data:`~stereonet.models.refine.CROSS_BASES`) also keep their 16-bit
     aggregated costs, and a fourth tensor, :func:`~stereonet.models.refine.cross_costs` :math:`(B, M M, H, W)`,
-    says how each base's cost rates each base's filled map (``evidence="cross"`` networks)."""
+    says how each base's cost rates each base's filled map (``evidence="cross"`` networks). ``wmf=(radius,
+    sigma_color)``: each filled map then goes through the image-guided weighted median
+    (:func:`~stereonet.select.filters.weighted_median_filter`) before it is stacked (validity and confidence as before;
+    the cross costs rate the unfiltered maps)."""
     from stereonet.matchers import get_matcher
     from stereonet.models.refine import BASES, CROSS_BASES, cross_costs
     from stereonet.select.fill import fill_occlusions
+    from stereonet.select.filters import weighted_median_filter
 
     maps, valids, confidences, aggregates = [], [], [], []
     for name in bases:
@@ -346,9 +350,12 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
             else:
                 aggregates.append((volume, float(out.extras["aggregate_scale"])))
     result = torch.cat(maps, 1), torch.cat(valids, 1), torch.cat(confidences, 1)
-    if cross:
-        return (*result, cross_costs(aggregates, result[0]))
-    return result
+    costs = (cross_costs(aggregates, result[0]),) if cross else ()
+    if wmf is not None:
+        radius, sigma_color = wmf
+        filtered = [weighted_median_filter(m, left, radius=radius, sigma_color=sigma_color) for m in maps]
+        result = (torch.cat(filtered, 1), *result[1:])
+    return (*result, *costs)
 
 
 # sgm-refine's weighted median after the choice: radius 9 px, colour scale 0.2, chosen on fresh data_gen sets only
@@ -361,7 +368,7 @@ WMF_SIGMA_COLOR = 0.2
           description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt), then an image-guided weighted median")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                        backend: str = "torch", wmf_radius: int = WMF_RADIUS, wmf_sigma_color: float = WMF_SIGMA_COLOR,
-                       **options) -> StereoOutput:
+                       base_wmf_radius: int = 0, **options) -> StereoOutput:
     """The maps of the weights file's base matchers (its ``bases``; options go to ``sgm``), each with its invalid
     pixels filled, then :class:`~stereonet.models.refine.RefineNet` reads the images and the maps with their
     validity and confidence and returns, per pixel, a residual on the map or (``select`` files) one of the
@@ -369,19 +376,23 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     (model card, seventeenth session); older files refine ``sgm`` alone. Then, unless ``wmf_radius`` is 0, the
     image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, radius ``wmf_radius``,
     ``wmf_sigma_color``) near the map's discontinuities, against foreground fattening (model card, thirty-second
-    session); ``extras["unfiltered"]`` keeps the choice's own map. Every pixel is valid; the confidence is the first
-    map's (the choice does not re-rank it). ``backend``: "torch" only."""
+    session); ``extras["unfiltered"]`` keeps the choice's own map. ``base_wmf_radius`` (0 = off): the base maps go
+    through the same filter (that radius, ``wmf_sigma_color``) before the network reads them. Every pixel is valid;
+    the confidence is the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
     from stereonet.select.filters import weighted_median_filter
 
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
-    if isinstance(wmf_radius, bool) or not isinstance(wmf_radius, int) or wmf_radius < 0:
-        raise StereoInputError(f"wmf_radius: expected an integer >= 0 (0 = no weighted median), got {wmf_radius!r}")
+    for name, value in (("wmf_radius", wmf_radius), ("base_wmf_radius", base_wmf_radius)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise StereoInputError(f"{name}: expected an integer >= 0 (0 = no weighted median), got {value!r}")
     if not wmf_sigma_color > 0:
         raise StereoInputError(f"wmf_sigma_color: expected a value > 0, got {wmf_sigma_color!r}")
     net = load_network("refine", checkpoint)
     cross = getattr(net, "evidence", "pixel") == "cross"
-    base, valid, confidence, *costs = refine_bases(net.bases, left, right, max_disp, cross=cross, **options)
+    base, valid, confidence, *costs = refine_bases(net.bases, left, right, max_disp, cross=cross,
+                                                   wmf=(base_wmf_radius, wmf_sigma_color) if base_wmf_radius else None,
+                                                   **options)
     dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
         disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),
