@@ -439,3 +439,30 @@ def test_sgm_refine_ends_with_the_weighted_median_of_its_choice(tmp_path):
                       ({"wmf_sigma_color": 0.0}, "wmf_sigma_color")):
         with pytest.raises(StereoInputError, match=name):
             match("sgm-refine", left, right, 16, checkpoint=str(path), **bad)
+
+
+def test_refine_bases_filter_each_map_before_the_choice(tmp_path):
+    """refine_bases(wmf=(r, s)): each filled map is the weighted median of the unfiltered one, validity and
+    confidence unchanged; sgm-refine's base_wmf_radius passes it on (extras["base"] is the filtered first map)."""
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import refine_bases
+    from stereonet.select.filters import weighted_median_filter
+
+    left, right = _pair(40, 72, 2)
+    far_left, far_right = _pair(40, 72, 9)
+    left[..., 28:], right[..., 28:] = 0.5 * far_left[..., 28:] + 0.25, 0.5 * far_right[..., 28:] + 0.25
+    bases = ("siamese-census-sgm", "sgm")
+    plain = refine_bases(bases, left, right, 16)
+    filtered = refine_bases(bases, left, right, 16, wmf=(3, 0.2))
+    expected = torch.cat([weighted_median_filter(plain[0][:, m:m + 1], left, radius=3, sigma_color=0.2)
+                          for m in range(2)], 1)
+    assert torch.equal(filtered[0], expected) and not torch.equal(filtered[0], plain[0])
+    assert torch.equal(filtered[1], plain[1]) and torch.equal(filtered[2], plain[2])
+    config = {"channels": 4, "dilations": [1], "mode": "select", "radii": [], "bases": list(bases)}
+    path = tmp_path / "refine.pt"
+    save_weights(path, "refine", config, RefineNet(**config))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), base_wmf_radius=3, wmf_sigma_color=0.2,
+                wmf_radius=0)
+    assert torch.equal(out.extras["base"], expected[:, :1])
+    with pytest.raises(StereoInputError, match="base_wmf_radius"):
+        match("sgm-refine", left, right, 16, checkpoint=str(path), base_wmf_radius=-2)
