@@ -27,7 +27,7 @@ for item in (load("wmfb2")[0], cones):
     changed = ((after - before).abs() > 0.5)[0, 0].numpy()
     rgb = (left[0].permute(1, 2, 0).numpy() * 255).astype(np.uint8)
 
-    def bad2(d):
+    def bad2(d, gt=gt, gt_valid=gt_valid):
         return evaluate(d, gt, gt_valid, see=False)["bad2"]
 
     rows.append(panel([rgb, error_map(before[0, 0], gt[0, 0], gt_valid[0, 0]),
