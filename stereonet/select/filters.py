@@ -111,8 +111,8 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         radius: window radius in pixels (>= 1).
         sigma_color: intensity scale of the weights (> 0, in the guide's units).
         sigma_space: spatial scale in pixels (> 0); ``None`` = ``radius``.
-        valid: optional bool :math:`(B, 1, H, W)`: only valid pixels vote (every output pixel is defined; a pixel
-            without valid neighbours keeps its value).
+        valid: optional bool :math:`(B, 1, H, W)`: only valid pixels vote, and never a non-finite value (every
+            output pixel is defined where some neighbour votes; a pixel without voting neighbours keeps its value).
         jump: the step (px) between 4-neighbours that makes a discontinuity.
         backend: ``"auto"`` (numba for CPU input without gradient), ``"torch"`` or ``"numba"``.
 
@@ -133,8 +133,7 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         raise StereoInputError(f"jump: expected a value >= 0 pixels, got {jump!r}")
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
-    if valid is None:
-        valid = torch.ones_like(disp, dtype=torch.bool)
+    valid = torch.isfinite(disp) if valid is None else valid & torch.isfinite(disp)  # NaN and inf never vote
     if use_numba(disp, guide, backend=backend, float32_only=False):
         d = disp.detach().to("cpu", torch.float32).numpy()
         g = guide.detach().to("cpu", torch.float32).numpy()
@@ -146,20 +145,12 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
     return _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump)
 
 
-def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump):
-    """The reference of :func:`weighted_median_filter` (unfolded windows, float64 weights; memory ~ 8 (2r+1)² H W)."""
+def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump, rows=None):
+    """The reference of :func:`weighted_median_filter` (unfolded windows, float64 weights), in bands of ``rows``
+    rows (default: about 128 MB per unfolded float64 tensor) so that its memory stays bounded at any size."""
     b, c, h, w = guide.shape
     k = 2 * radius + 1
     d = disp.to(torch.float32)
-    vals = F.unfold(d, k, padding=radius)  # Bx(k*k)x(H*W), out-of-image samples are masked below
-    votes = F.unfold(valid.to(torch.float32), k, padding=radius) > 0.5
-    g = guide.to(torch.float64)
-    diff = F.unfold(g, k, padding=radius).view(b, c, k * k, h * w) - g.view(b, c, 1, h * w)
-    ky, kx = torch.meshgrid(torch.arange(k) - radius, torch.arange(k) - radius, indexing="ij")
-    space = (ky.reshape(-1) ** 2 + kx.reshape(-1) ** 2).to(torch.float64).view(1, k * k, 1)
-    log_w = diff.pow(2).sum(1) * (-0.5 / sigma_color ** 2) + space * (-0.5 / sigma_space ** 2)
-    weights = torch.exp(log_w.clamp(min=WMF_MIN_LOG_WEIGHT))
-    weights = weights.masked_fill(~votes, 0.0)
     d64 = d.to(torch.float64)
     edge = torch.zeros_like(valid)
     step_x = ((d64[..., 1:] - d64[..., :-1]).abs() > jump) & valid[..., 1:] & valid[..., :-1]
@@ -167,12 +158,25 @@ def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space,
     edge[..., :-1] |= step_x
     edge[..., :-1, :] |= step_y
     near = F.max_pool2d(edge.to(torch.float32), k, 1, radius) > 0
-    active = near.flatten(2)[:, 0] & votes.any(1)
-    order = vals.masked_fill(~votes, float("inf")).sort(dim=1, stable=True).indices
-    sorted_w = weights.gather(1, order)
-    cum = sorted_w.cumsum(1)
-    half = 0.5 * cum[:, -1:]
-    first = (cum >= half).to(torch.uint8).argmax(1, keepdim=True)  # the first position that reaches half
-    med = vals.gather(1, order.gather(1, first))[:, 0]
-    out = torch.where(active, med, d.flatten(2)[:, 0])
-    return out.view(b, 1, h, w).to(disp.dtype)
+    rows = rows or max(1, 2 ** 27 // (8 * k * k * w * b))
+    ky, kx = torch.meshgrid(torch.arange(k) - radius, torch.arange(k) - radius, indexing="ij")
+    space = (ky.reshape(-1) ** 2 + kx.reshape(-1) ** 2).to(torch.float64).view(1, k * k, 1).to(d.device)
+    out = d.clone()
+    for y0 in range(0, h, rows):
+        y1 = min(h, y0 + rows)
+        a0, a1 = max(0, y0 - radius), min(h, y1 + radius)  # the band with its halo (real rows inside the image)
+        bh = a1 - a0
+        db, vb, gb = d[..., a0:a1, :], valid[..., a0:a1, :], guide[..., a0:a1, :].to(torch.float64)
+        vals = F.unfold(db, k, padding=radius)  # Bx(k*k)x(bh*W); samples outside the band are masked below
+        votes = F.unfold(vb.to(torch.float32), k, padding=radius) > 0.5
+        diff = F.unfold(gb, k, padding=radius).view(b, c, k * k, bh * w) - gb.reshape(b, c, 1, bh * w)
+        log_w = diff.pow(2).sum(1) * (-0.5 / sigma_color ** 2) + space * (-0.5 / sigma_space ** 2)
+        weights = torch.exp(log_w.clamp(min=WMF_MIN_LOG_WEIGHT)).masked_fill(~votes, 0.0)
+        order = vals.masked_fill(~votes, float("inf")).sort(dim=1, stable=True).indices
+        cum = weights.gather(1, order).cumsum(1)
+        first = (cum >= 0.5 * cum[:, -1:]).to(torch.uint8).argmax(1, keepdim=True)  # the first to reach half
+        med = vals.gather(1, order.gather(1, first)).view(b, 1, bh, w)
+        active = near[..., a0:a1, :] & votes.any(1).view(b, 1, bh, w)
+        band = torch.where(active, med, db)
+        out[..., y0:y1, :] = band[..., y0 - a0:y1 - a0, :]  # the core rows: their windows lie inside the band
+    return out.to(disp.dtype)

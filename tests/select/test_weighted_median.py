@@ -61,3 +61,23 @@ def test_bad_input_names_the_argument():
             weighted_median_filter(disp, guide, **kwargs)
     with pytest.raises(StereoInputError, match="guide"):
         weighted_median_filter(disp, guide[..., :-1])
+
+
+def test_torch_bands_equal_the_whole_image_and_non_finite_values_never_vote():
+    """The torch reference in bands of a few rows equals one band (the halo holds every window); NaN and inf
+    disparities do not vote (both backends agree) and only change where they sit."""
+    from stereonet.select.filters import _weighted_median_torch
+
+    g = torch.Generator().manual_seed(3)
+    disp = torch.rand(1, 1, 29, 37, generator=g) * 3
+    disp[..., 18:] += 7
+    guide = torch.rand(1, 3, 29, 37, generator=g)
+    valid = torch.rand(1, 1, 29, 37, generator=g) > 0.2
+    whole = _weighted_median_torch(disp, guide, valid, 4, 0.3, 4.0, 1.0, rows=1000)
+    for rows in (1, 5, 11):
+        assert torch.equal(_weighted_median_torch(disp, guide, valid, 4, 0.3, 4.0, 1.0, rows=rows), whole)
+    bad = disp.clone()
+    bad[0, 0, 10, 5], bad[0, 0, 20, 25] = float("nan"), float("inf")
+    a = weighted_median_filter(bad, guide, radius=4, sigma_color=0.3, backend="numba")
+    b = weighted_median_filter(bad, guide, radius=4, sigma_color=0.3, backend="torch")
+    assert torch.equal(a, b) and bool(torch.isfinite(a).all())  # the two non-finite pixels get their neighbours' median
