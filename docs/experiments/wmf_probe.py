@@ -3,6 +3,8 @@ after a matcher's filled map, on data_gen sets (the rule of docs/experiments/wmf
 (evaluation only). Each method runs once per pair; every filter setting is applied to that filled map and scored with
 eval.py's metrics. Prints, per set, the mean bad-2 / EPE / SEE of each (method, setting), and the near-edge bad-2
 (within 4 px of a ground-truth depth edge) with the share of those errors larger than the truth (fattening).
+For sgm-refine the filter under test replaces the matcher's own (run with wmf_radius=0, the choice itself), so
+"off" is the choice alone, as in the runs recorded in docs/experiments/wmf.txt (made before the matcher had a filter).
 Run: python docs/experiments/wmf_probe.py "sgm,sgm-refine" "val2;val4" "off,5:0.1,9:0.1"   (radius:sigma_color)"""
 import statistics
 import sys
@@ -30,7 +32,8 @@ for spec, item in items(specs):
     near &= gv
     for m in methods:
         with torch.no_grad():
-            out = apply_fill(matchers.match(m, left, right, md))
+            # sgm-refine's own filter off: the settings are applied to its choice, as when they were selected
+            out = apply_fill(matchers.match(m, left, right, md, **({"wmf_radius": 0} if m == "sgm-refine" else {})))
         for s in settings:
             if s == "off":
                 d = out.disparity
