@@ -31,7 +31,8 @@ on seeds 5228/5229 and ``wselb2``/``wselb4`` (weak_background 1) on seeds 5230/5
 ``wmf2``/``wmf4`` on seeds 5232/5233 and ``wmfb2``/``wmfb4`` (weak_background 1) on seeds 5234/5235 (its
 confirmation), ``val2ae``/``val4ae`` on seeds 5236/5237 and ``wb2d``/``wb4d`` (weak_background 1) on seeds 5238/5239
 (the chooser on filtered maps), ``val2af``/``val4af`` on seeds 5240/5241 and ``wb2e``/``wb4e`` (weak_background 1) on
-seeds 5242/5243 (the smaller weighted median for speed); any other spec as
+seeds 5242/5243 (the smaller weighted median for speed), ``val2ag``/``val4ag`` on seeds 5244/5245 and ``wb2f``/``wb4f``
+(weak_background 1) on seeds 5246/5247 (the chooser with only sgm's map filtered); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -80,7 +81,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2ae": (12, 5236, 2), "val4ae": (8, 5237, 4),
         "wb2d": (12, 5238, 2, {"weak_background": 1.0}), "wb4d": (8, 5239, 4, {"weak_background": 1.0}),
         "val2af": (12, 5240, 2), "val4af": (8, 5241, 4),
-        "wb2e": (12, 5242, 2, {"weak_background": 1.0}), "wb4e": (8, 5243, 4, {"weak_background": 1.0})}
+        "wb2e": (12, 5242, 2, {"weak_background": 1.0}), "wb4e": (8, 5243, 4, {"weak_background": 1.0}),
+        "val2ag": (12, 5244, 2), "val4ag": (8, 5245, 4),
+        "wb2f": (12, 5246, 2, {"weak_background": 1.0}), "wb4f": (8, 5247, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
