@@ -316,7 +316,7 @@ def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_optio
 
 
 def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, cross: bool = False,
-                 wmf: tuple[int, float] | None = None, **sgm_options):
+                 wmf: tuple[int, float] | None = None, wmf_bases: tuple[str, ...] | None = None, **sgm_options):
     """The maps of the matchers ``bases`` (:data:`stereonet.models.refine.BASES`) as a RefineNet reads them:
     each filled by the shared rule, stacked along the channels as ``(disparity, valid, confidence)``, each
     :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; the Siamese matchers run with the shipped weights.
@@ -325,7 +325,7 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     says how each base's cost rates each base's filled map (``evidence="cross"`` networks). ``wmf=(radius,
     sigma_color)``: each filled map then goes through the image-guided weighted median
     (:func:`~stereonet.select.filters.weighted_median_filter`) before it is stacked (validity and confidence as before;
-    the cross costs rate the unfiltered maps)."""
+    the cross costs rate the unfiltered maps); ``wmf_bases``: only the maps of these bases (None: every one)."""
     from stereonet.matchers import get_matcher
     from stereonet.models.refine import BASES, CROSS_BASES, cross_costs
     from stereonet.select.fill import fill_occlusions
@@ -353,7 +353,8 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     costs = (cross_costs(aggregates, result[0]),) if cross else ()
     if wmf is not None:
         radius, sigma_color = wmf
-        filtered = [weighted_median_filter(m, left, radius=radius, sigma_color=sigma_color) for m in maps]
+        filtered = [weighted_median_filter(m, left, radius=radius, sigma_color=sigma_color)
+                    if wmf_bases is None or name in wmf_bases else m for name, m in zip(bases, maps)]
         result = (torch.cat(filtered, 1), *result[1:])
     return (*result, *costs)
 
@@ -368,7 +369,8 @@ WMF_SIGMA_COLOR = 0.2
           description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt), then an image-guided weighted median")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                        backend: str = "torch", wmf_radius: int = WMF_RADIUS, wmf_sigma_color: float = WMF_SIGMA_COLOR,
-                       base_wmf_radius: int = 0, **options) -> StereoOutput:
+                       base_wmf_radius: int = 0, base_wmf_bases: tuple[str, ...] | None = None,
+                       **options) -> StereoOutput:
     """The maps of the weights file's base matchers (its ``bases``; options go to ``sgm``), each with its invalid
     pixels filled, then :class:`~stereonet.models.refine.RefineNet` reads the images and the maps with their
     validity and confidence and returns, per pixel, a residual on the map or (``select`` files) one of the
@@ -376,8 +378,9 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     (model card, seventeenth session); older files refine ``sgm`` alone. Then, unless ``wmf_radius`` is 0, the
     image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, radius ``wmf_radius``,
     ``wmf_sigma_color``) near the map's discontinuities, against foreground fattening (model card, thirty-second
-    session); ``extras["unfiltered"]`` keeps the choice's own map. ``base_wmf_radius`` (0 = off): the base maps go
-    through the same filter (that radius, ``wmf_sigma_color``) before the network reads them. Every pixel is valid;
+    session); ``extras["unfiltered"]`` keeps the choice's own map. ``base_wmf_radius`` (0 = off): the base maps (those named
+    in ``base_wmf_bases``, None = all) go through the same filter (that radius, ``wmf_sigma_color``) before the
+    network reads them. Every pixel is valid;
     the confidence is the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
     from stereonet.select.filters import weighted_median_filter
 
@@ -392,7 +395,7 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     cross = getattr(net, "evidence", "pixel") == "cross"
     base, valid, confidence, *costs = refine_bases(net.bases, left, right, max_disp, cross=cross,
                                                    wmf=(base_wmf_radius, wmf_sigma_color) if base_wmf_radius else None,
-                                                   **options)
+                                                   wmf_bases=base_wmf_bases, **options)
     dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
         disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),

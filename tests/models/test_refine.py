@@ -466,3 +466,18 @@ def test_refine_bases_filter_each_map_before_the_choice(tmp_path):
     assert torch.equal(out.extras["base"], expected[:, :1])
     with pytest.raises(StereoInputError, match="base_wmf_radius"):
         match("sgm-refine", left, right, 16, checkpoint=str(path), base_wmf_radius=-2)
+
+
+def test_refine_bases_filter_only_the_named_maps():
+    """wmf_bases=("sgm",): sgm's map filtered, siamese-census-sgm's left as it is."""
+    from stereonet.matchers.learned import refine_bases
+
+    left, right = _pair(40, 72, 2)
+    far_left, far_right = _pair(40, 72, 9)
+    left[..., 28:], right[..., 28:] = 0.5 * far_left[..., 28:] + 0.25, 0.5 * far_right[..., 28:] + 0.25
+    bases = ("siamese-census-sgm", "sgm")
+    plain = refine_bases(bases, left, right, 16)[0]
+    every = refine_bases(bases, left, right, 16, wmf=(3, 0.2))[0]
+    only = refine_bases(bases, left, right, 16, wmf=(3, 0.2), wmf_bases=("sgm",))[0]
+    assert torch.equal(only[:, :1], plain[:, :1]) and torch.equal(only[:, 1:], every[:, 1:])
+    assert not torch.equal(only[:, 1:], plain[:, 1:])
