@@ -32,7 +32,9 @@ on seeds 5228/5229 and ``wselb2``/``wselb4`` (weak_background 1) on seeds 5230/5
 confirmation), ``val2ae``/``val4ae`` on seeds 5236/5237 and ``wb2d``/``wb4d`` (weak_background 1) on seeds 5238/5239
 (the chooser on filtered maps), ``val2af``/``val4af`` on seeds 5240/5241 and ``wb2e``/``wb4e`` (weak_background 1) on
 seeds 5242/5243 (the smaller weighted median for speed), ``val2ag``/``val4ag`` on seeds 5244/5245 and ``wb2f``/``wb4f``
-(weak_background 1) on seeds 5246/5247 (the chooser with only sgm's map filtered); any other spec as
+(weak_background 1) on seeds 5246/5247 (the chooser with only sgm's map filtered), ``val2ah``/``val4ah`` on seeds
+5248/5249 and ``wb2g``/``wb4g`` (weak_background 1) on seeds 5250/5251 (a chooser trained on sgm's filtered map); any
+other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -83,7 +85,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2af": (12, 5240, 2), "val4af": (8, 5241, 4),
         "wb2e": (12, 5242, 2, {"weak_background": 1.0}), "wb4e": (8, 5243, 4, {"weak_background": 1.0}),
         "val2ag": (12, 5244, 2), "val4ag": (8, 5245, 4),
-        "wb2f": (12, 5246, 2, {"weak_background": 1.0}), "wb4f": (8, 5247, 4, {"weak_background": 1.0})}
+        "wb2f": (12, 5246, 2, {"weak_background": 1.0}), "wb4f": (8, 5247, 4, {"weak_background": 1.0}),
+        "val2ah": (12, 5248, 2), "val4ah": (8, 5249, 4),
+        "wb2g": (12, 5250, 2, {"weak_background": 1.0}), "wb4g": (8, 5251, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

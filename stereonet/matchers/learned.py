@@ -380,7 +380,8 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     ``wmf_sigma_color``) near the map's discontinuities, against foreground fattening (model card, thirty-second
     session); ``extras["unfiltered"]`` keeps the choice's own map. ``base_wmf_radius`` (0 = off): the base maps (those named
     in ``base_wmf_bases``, None = all) go through the same filter (that radius, ``wmf_sigma_color``) before the
-    network reads them. Every pixel is valid;
+    network reads them; a weights file whose network was trained on filtered maps (``filtered_bases``) gets them
+    so by default. Every pixel is valid;
     the confidence is the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
     from stereonet.select.filters import weighted_median_filter
 
@@ -393,9 +394,13 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
         raise StereoInputError(f"wmf_sigma_color: expected a value > 0, got {wmf_sigma_color!r}")
     net = load_network("refine", checkpoint)
     cross = getattr(net, "evidence", "pixel") == "cross"
+    wmf, wmf_bases = None, None
+    if base_wmf_radius:  # the caller's choice
+        wmf, wmf_bases = (base_wmf_radius, wmf_sigma_color), base_wmf_bases
+    elif getattr(net, "filtered_bases", ()):  # a network trained on filtered maps reads them so
+        wmf, wmf_bases = (WMF_RADIUS, WMF_SIGMA_COLOR), net.filtered_bases
     base, valid, confidence, *costs = refine_bases(net.bases, left, right, max_disp, cross=cross,
-                                                   wmf=(base_wmf_radius, wmf_sigma_color) if base_wmf_radius else None,
-                                                   wmf_bases=base_wmf_bases, **options)
+                                                   wmf=wmf, wmf_bases=wmf_bases, **options)
     dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
         disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),

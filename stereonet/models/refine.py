@@ -162,11 +162,15 @@ class RefineNet(nn.Module):
             with ``select`` only).
         evidence: per-candidate evidence of a ``select`` network (:data:`EVIDENCE`): ``"census"`` adds each
             candidate's windowed census distance (:func:`census_distance`).
+        filtered_bases: the bases (of ``bases``) whose maps the network reads after the image-guided weighted
+            median (``sgm-refine``'s filter, :data:`stereonet.matchers.learned.WMF_RADIUS`); stored for the matcher
+            and training, the network itself only reads the maps it is given.
     """
 
     def __init__(self, channels: int = 16, dilations: tuple[int, ...] | list[int] = (1, 2, 4, 8, 1),
                  mode: str = "residual", radii: tuple[int, ...] | list[int] = (1, 3, 9, 27),
-                 bases: tuple[str, ...] | list[str] = ("sgm",), evidence: str = "pixel") -> None:
+                 bases: tuple[str, ...] | list[str] = ("sgm",), evidence: str = "pixel",
+                 filtered_bases: tuple[str, ...] | list[str] = ()) -> None:
         super().__init__()
         if channels < 1:
             raise StereoInputError(f"channels: expected >= 1, got {channels}")
@@ -189,7 +193,12 @@ class RefineNet(nn.Module):
         if len(bases) > 1 and mode != "select":
             raise StereoInputError(f"bases: more than one map needs mode 'select', got mode {mode!r}")
         self.channels, self.dilations = int(channels), tuple(int(d) for d in dilations)
+        filtered_bases = tuple(filtered_bases)
+        if any(b not in bases for b in filtered_bases):
+            raise StereoInputError(f"filtered_bases: expected names from bases ({', '.join(bases)}), "
+                                   f"got {list(filtered_bases)}")
         self.mode, self.radii, self.bases, self.evidence = mode, tuple(int(r) for r in radii), bases, evidence
+        self.filtered_bases = filtered_bases
         maps = len(bases)
         in_channels = INPUT_CHANNELS + PLANES_PER_MAP * (maps - 1)
         mods: list[nn.Module] = [nn.Conv2d(in_channels, self.channels, 3, padding=1), nn.ReLU(inplace=True)]

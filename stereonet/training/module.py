@@ -555,6 +555,8 @@ class RefineModule(StereoModule):
         pair_ranges: run the base matchers with each pair's own ``max_disp`` where the batch carries it (True) or
             with ``max_disp`` for every pair (False: how the seventeenth session's ``refine.pt`` was trained, when
             training batches did not carry the field).
+        filtered_bases: the bases whose maps the network reads after sgm-refine's weighted median (RefineNet's
+            ``filtered_bases``; each training pair's maps are filtered as at inference).
         balance: ``select`` with target "keep" or "decisive" only: weigh the target classes (which candidate is the
             target) equally in each batch, the loss being the mean over the classes present of each class's mean
             cross-entropy (False: every pixel counts once, so the classes count by their frequency).
@@ -567,7 +569,7 @@ class RefineModule(StereoModule):
                  mode: str = "residual", radii: tuple[int, ...] = (1, 3, 9, 27), tolerance: float = 1.0,
                  target: str = "any", bases: tuple[str, ...] = ("sgm",), lr: float = 1e-3, weight_decay: float = 1e-4,
                  schedule_steps: int = 5000, evidence: str = "pixel", pair_ranges: bool = True,
-                 balance: bool = False) -> None:
+                 balance: bool = False, filtered_bases: tuple[str, ...] = ()) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if not tolerance > 0:
             raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
@@ -578,7 +580,7 @@ class RefineModule(StereoModule):
                              f"target {target!r}")
         self.save_hyperparameters()
         self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii),
-                               bases=tuple(bases), evidence=evidence)
+                               bases=tuple(bases), evidence=evidence, filtered_bases=tuple(filtered_bases))
 
     def model_config(self) -> dict:
         config = {"channels": self.hparams.channels, "dilations": list(self.hparams.dilations)}
@@ -588,11 +590,13 @@ class RefineModule(StereoModule):
             config.update(bases=list(self.hparams.bases))
         if self.hparams.get("evidence", "pixel") != "pixel":  # older files have no such key
             config.update(evidence=self.hparams.evidence)
+        if tuple(self.hparams.get("filtered_bases", ())):  # older files have no such key
+            config.update(filtered_bases=list(self.hparams.filtered_bases))
         return config
 
     def compute(self, batch: dict):
         # matchers sit above models; only training reaches up
-        from stereonet.matchers.learned import refine_bases
+        from stereonet.matchers.learned import WMF_RADIUS, WMF_SIGMA_COLOR, refine_bases
 
         left, right = batch["left"], batch["right"]
         b, w = left.shape[0], left.shape[-1]
@@ -601,8 +605,10 @@ class RefineModule(StereoModule):
         ranges = [max(1, min(int(r), w - 1)) for r in ranges]
         cross = self.model.evidence == "cross"
         with torch.no_grad():
-            parts = [refine_bases(self.model.bases, left[i:i + 1], right[i:i + 1], ranges[i], cross=cross)
-                     for i in range(b)]
+            filtered = self.model.filtered_bases
+            wmf = (WMF_RADIUS, WMF_SIGMA_COLOR) if filtered else None
+            parts = [refine_bases(self.model.bases, left[i:i + 1], right[i:i + 1], ranges[i], cross=cross, wmf=wmf,
+                                  wmf_bases=filtered) for i in range(b)]
             base, valid, confidence, *costs = (torch.cat(t) for t in zip(*parts))
         gt, gt_valid = batch["disparity"], batch["valid"]
         scale = torch.tensor(ranges, dtype=left.dtype)

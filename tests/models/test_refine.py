@@ -481,3 +481,25 @@ def test_refine_bases_filter_only_the_named_maps():
     only = refine_bases(bases, left, right, 16, wmf=(3, 0.2), wmf_bases=("sgm",))[0]
     assert torch.equal(only[:, :1], plain[:, :1]) and torch.equal(only[:, 1:], every[:, 1:])
     assert not torch.equal(only[:, 1:], plain[:, 1:])
+
+
+def test_a_network_trained_on_filtered_maps_reads_them_so(tmp_path):
+    """A weights file with filtered_bases: the matcher filters those maps (sgm-refine's radius and colour scale)
+    before the choice without being told; an unknown name is refused naming the option."""
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import WMF_RADIUS, WMF_SIGMA_COLOR, refine_bases
+
+    left, right = _pair(40, 72, 2)
+    far_left, far_right = _pair(40, 72, 9)
+    left[..., 28:], right[..., 28:] = 0.5 * far_left[..., 28:] + 0.25, 0.5 * far_right[..., 28:] + 0.25
+    bases = ["siamese-census-sgm", "sgm"]
+    config = {"channels": 4, "dilations": [1], "mode": "select", "radii": [], "bases": bases,
+              "filtered_bases": ["siamese-census-sgm"]}
+    path = tmp_path / "refine.pt"
+    save_weights(path, "refine", config, RefineNet(**config))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
+    expected = refine_bases(tuple(bases), left, right, 16, wmf=(WMF_RADIUS, WMF_SIGMA_COLOR),
+                            wmf_bases=("siamese-census-sgm",))[0]
+    assert torch.equal(out.extras["base"], expected[:, :1])  # untrained: the first map, filtered
+    with pytest.raises(StereoInputError, match="filtered_bases"):
+        RefineNet(**{**config, "filtered_bases": ["bp"]})

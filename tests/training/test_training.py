@@ -660,3 +660,23 @@ def test_refine_module_balance_changes_the_loss_and_needs_a_one_target_choice(on
     for bad in (dict(target="any"), dict(mode="residual", target="keep")):
         with pytest.raises(ValueError, match="balance"):
             RefineModule(balance=True, **{**kwargs, **bad})
+
+
+def test_refine_module_filtered_bases_trains_on_filtered_maps_and_exports_them(one_thread):
+    """filtered_bases=("sgm",): the step reads sgm's map after the weighted median (the logged second map's error
+    is the filtered map's), the loss falls, and the exported config names the filtered bases."""
+    from stereonet.matchers.learned import WMF_RADIUS, WMF_SIGMA_COLOR, refine_bases
+
+    torch.manual_seed(0)
+    batch = _one_batch()
+    module = RefineModule(channels=8, dilations=(1, 2), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"),
+                          target="decisive", filtered_bases=("sgm",))
+    _, _, extra = module.compute(batch)
+    maps = torch.cat([refine_bases(("siamese-census-sgm", "sgm"), batch["left"][i:i + 1], batch["right"][i:i + 1],
+                                   int(batch["max_disp"][i]) if "max_disp" in batch else 64,
+                                   wmf=(WMF_RADIUS, WMF_SIGMA_COLOR), wmf_bases=("sgm",))[0]
+                      for i in range(batch["left"].shape[0])])
+    assert torch.allclose(extra["base2_bad2"], disparity_errors(maps[:, 1:], batch["disparity"], batch["valid"])["bad2"])
+    first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 1e-2)
+    assert final < first, (first, final)
+    assert module.model_config()["filtered_bases"] == ["sgm"]
