@@ -35,6 +35,7 @@ from stereonet.models.layers import InputPadder, resize_disparity
 from stereonet.models.siamese import siamese_cost_volume, tower_dtype
 from stereonet.models.smd import MixtureParams, error_probability, mixture_outputs, padded_query_grid
 from stereonet.models.weights import default_weights_path, load_weights
+from stereonet.select.filters import WMF_RADIUS, WMF_SIGMA_COLOR, check_wmf_options, weighted_median_filter
 from stereonet.types import StereoOutput
 
 BACKENDS = ("torch", "onnx")
@@ -329,7 +330,6 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     from stereonet.matchers import get_matcher
     from stereonet.models.refine import BASES, CROSS_BASES, cross_costs
     from stereonet.select.fill import fill_occlusions
-    from stereonet.select.filters import weighted_median_filter
 
     maps, valids, confidences, aggregates = [], [], [], []
     for name in bases:
@@ -359,12 +359,6 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     return (*result, *costs)
 
 
-# sgm-refine's weighted median after the choice: radius 9 px, colour scale 0.2, chosen on fresh data_gen sets only
-# (docs/experiments/wmf.txt: selection on wsel2/wsel4/wselb2/wselb4, confirmed on wmf2/wmf4/wmfb2/wmfb4)
-WMF_RADIUS = 9
-WMF_SIGMA_COLOR = 0.2
-
-
 @register("sgm-refine", kind="learned", needs_weights=True,
           description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt), then an image-guided weighted median")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
@@ -383,15 +377,10 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     network reads them; a weights file whose network was trained on filtered maps (``filtered_bases``) gets them
     so by default. Every pixel is valid;
     the confidence is the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
-    from stereonet.select.filters import weighted_median_filter
-
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
-    for name, value in (("wmf_radius", wmf_radius), ("base_wmf_radius", base_wmf_radius)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise StereoInputError(f"{name}: expected an integer >= 0 (0 = no weighted median), got {value!r}")
-    if not wmf_sigma_color > 0:
-        raise StereoInputError(f"wmf_sigma_color: expected a value > 0, got {wmf_sigma_color!r}")
+    check_wmf_options(wmf_radius, wmf_sigma_color)
+    check_wmf_options(base_wmf_radius, wmf_sigma_color, radius_name="base_wmf_radius")
     net = load_network("refine", checkpoint)
     cross = getattr(net, "evidence", "pixel") == "cross"
     wmf, wmf_bases = None, None

@@ -51,7 +51,13 @@ from stereonet.cost.volume import (
 from stereonet.kernels import use_numba
 from stereonet.matchers import register
 from stereonet.select.fill import fill_occlusions
-from stereonet.select.filters import median_filter, speckle_filter
+from stereonet.select.filters import (
+    WMF_SIGMA_COLOR,
+    check_wmf_options,
+    median_filter,
+    speckle_filter,
+    weighted_median_filter,
+)
 from stereonet.select.wta import (
     block_select_disparity,
     select_disparity,
@@ -258,24 +264,18 @@ def _given_p2_maps(maps, left: torch.Tensor, P1: float, P2: float, paths: int,
 
 @register("sgm", kind="classical",
           description="Semi-global matching: census 7x7, 8 paths, edge-adapted P2, parabola, LR, median, speckle")
-def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, wmf_radius: int = 0, wmf_sigma_color: float = 0.2,
-        **options) -> StereoOutput:
+def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, wmf_radius: int = 0,
+        wmf_sigma_color: float = WMF_SIGMA_COLOR, **options) -> StereoOutput:
     """Semi-global matching (Hirschmüller 2008); see :func:`sgm_core` for the options. ``wmf_radius`` > 0 (off by
     default): the map is then filled by eval.py's rule (:func:`~stereonet.select.fill.fill_occlusions`) and
     filtered by the image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, that
     radius and ``wmf_sigma_color``), every pixel valid, ``extras["lr_consistent"]`` the validity before the fill:
     ``sgm-refine``'s last step on the classical map (model card, thirty-second session: radius 9, 0.2 took the
     real pairs' median bad-2 from 7.4 to 6.15)."""
-    if isinstance(wmf_radius, bool) or not isinstance(wmf_radius, int) or wmf_radius < 0:
-        raise StereoInputError(f"wmf_radius: expected an integer >= 0 (0 = no weighted median), got {wmf_radius!r}")
-    if not wmf_sigma_color > 0:
-        raise StereoInputError(f"wmf_sigma_color: expected a value > 0, got {wmf_sigma_color!r}")
+    check_wmf_options(wmf_radius, wmf_sigma_color)
     out = sgm_core(left, right, max_disp, **options)
     if not wmf_radius:
         return out
-    from stereonet.select.fill import fill_occlusions
-    from stereonet.select.filters import weighted_median_filter
-
     disp = weighted_median_filter(fill_occlusions(out.disparity, out.valid), left, radius=wmf_radius,
                                   sigma_color=wmf_sigma_color)
     return StereoOutput(disp, torch.ones_like(out.valid), confidence=out.confidence, cost_volume=out.cost_volume,

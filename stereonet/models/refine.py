@@ -163,7 +163,7 @@ class RefineNet(nn.Module):
         evidence: per-candidate evidence of a ``select`` network (:data:`EVIDENCE`): ``"census"`` adds each
             candidate's windowed census distance (:func:`census_distance`).
         filtered_bases: the bases (of ``bases``) whose maps the network reads after the image-guided weighted
-            median (``sgm-refine``'s filter, :data:`stereonet.matchers.learned.WMF_RADIUS`); stored for the matcher
+            median (``sgm-refine``'s filter, :data:`stereonet.select.filters.WMF_RADIUS`); stored for the matcher
             and training, the network itself only reads the maps it is given.
     """
 

@@ -87,6 +87,23 @@ def speckle_filter(disp: torch.Tensor, valid: torch.Tensor, max_size: int = 100,
     return torch.from_numpy(out[:, None]).to(valid.device)
 
 
+# The weighted median after sgm-refine's choice (and sgm's opt-in one): radius 9 px, colour scale 0.2, chosen on
+# fresh data_gen sets only (docs/experiments/wmf.txt: selection on wsel2/wsel4/wselb2/wselb4, confirmed on
+# wmf2/wmf4/wmfb2/wmfb4)
+WMF_RADIUS = 9
+WMF_SIGMA_COLOR = 0.2
+
+
+def check_wmf_options(radius, sigma_color, radius_name: str = "wmf_radius",
+                      sigma_name: str = "wmf_sigma_color") -> None:
+    """A matcher's weighted-median options: ``radius`` an integer >= 0 (0 = no filter), ``sigma_color`` > 0;
+    a one-line :class:`StereoInputError` naming the option otherwise."""
+    if isinstance(radius, bool) or not isinstance(radius, int) or radius < 0:
+        raise StereoInputError(f"{radius_name}: expected an integer >= 0 (0 = no weighted median), got {radius!r}")
+    if not sigma_color > 0:
+        raise StereoInputError(f"{sigma_name}: expected a value > 0, got {sigma_color!r}")
+
+
 def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int = 7, sigma_color: float = 0.1,
                            sigma_space: float | None = None, valid: torch.Tensor | None = None,
                            jump: float = 1.0, backend: str = "auto") -> torch.Tensor:
