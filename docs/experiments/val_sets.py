@@ -33,7 +33,10 @@ confirmation), ``val2ae``/``val4ae`` on seeds 5236/5237 and ``wb2d``/``wb4d`` (w
 (the chooser on filtered maps), ``val2af``/``val4af`` on seeds 5240/5241 and ``wb2e``/``wb4e`` (weak_background 1) on
 seeds 5242/5243 (the smaller weighted median for speed), ``val2ag``/``val4ag`` on seeds 5244/5245 and ``wb2f``/``wb4f``
 (weak_background 1) on seeds 5246/5247 (the chooser with only sgm's map filtered), ``val2ah``/``val4ah`` on seeds
-5248/5249 and ``wb2g``/``wb4g`` (weak_background 1) on seeds 5250/5251 (a chooser trained on sgm's filtered map); any
+5248/5249 and ``wb2g``/``wb4g`` (weak_background 1) on seeds 5250/5251 (a chooser trained on sgm's filtered map),
+``val2ai``/``val4ai`` on seeds 5252/5253 and ``wb2h``/``wb4h`` (weak_background 1) on seeds 5254/5255 (the thirty-third
+session's strided weighted median: selection), ``val2aj``/``val4aj`` on seeds 5256/5257 and ``wb2i``/``wb4i``
+(weak_background 1) on seeds 5258/5259 (its confirmation); any
 other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -87,7 +90,11 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2ag": (12, 5244, 2), "val4ag": (8, 5245, 4),
         "wb2f": (12, 5246, 2, {"weak_background": 1.0}), "wb4f": (8, 5247, 4, {"weak_background": 1.0}),
         "val2ah": (12, 5248, 2), "val4ah": (8, 5249, 4),
-        "wb2g": (12, 5250, 2, {"weak_background": 1.0}), "wb4g": (8, 5251, 4, {"weak_background": 1.0})}
+        "wb2g": (12, 5250, 2, {"weak_background": 1.0}), "wb4g": (8, 5251, 4, {"weak_background": 1.0}),
+        "val2ai": (12, 5252, 2), "val4ai": (8, 5253, 4),
+        "wb2h": (12, 5254, 2, {"weak_background": 1.0}), "wb4h": (8, 5255, 4, {"weak_background": 1.0}),
+        "val2aj": (12, 5256, 2), "val4aj": (8, 5257, 4),
+        "wb2i": (12, 5258, 2, {"weak_background": 1.0}), "wb4i": (8, 5259, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

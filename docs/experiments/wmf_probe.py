@@ -5,7 +5,8 @@ eval.py's metrics. Prints, per set, the mean bad-2 / EPE / SEE of each (method, 
 (within 4 px of a ground-truth depth edge) with the share of those errors larger than the truth (fattening).
 For sgm-refine the filter under test replaces the matcher's own (run with wmf_radius=0, the choice itself), so
 "off" is the choice alone, as in the runs recorded in docs/experiments/wmf.txt (made before the matcher had a filter).
-Run: python docs/experiments/wmf_probe.py "sgm,sgm-refine" "val2;val4" "off,5:0.1,9:0.1"   (radius:sigma_color)"""
+Run: python docs/experiments/wmf_probe.py "sgm,sgm-refine" "val2;val4" "off,5:0.1,9:0.1,9:0.2:2:5"
+(radius:sigma_color, or radius:sigma_color:stride:band; see weighted_median_filter)"""
 import statistics
 import sys
 
@@ -38,8 +39,9 @@ for spec, item in items(specs):
             if s == "off":
                 d = out.disparity
             else:
-                r, sc = s.split(":")
-                d = weighted_median_filter(out.disparity, left, radius=int(r), sigma_color=float(sc))
+                r, sc, *more = s.split(":")  # radius:sigma_color[:stride:band]
+                extra = dict(stride=int(more[0]), band=int(more[1])) if more else {}
+                d = weighted_median_filter(out.disparity, left, radius=int(r), sigma_color=float(sc), **extra)
             res = StereoOutput(d, torch.ones_like(d, dtype=torch.bool))
             met = pair_metrics(res, item)
             err = d - gt

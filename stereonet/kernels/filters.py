@@ -192,21 +192,24 @@ def exp_sq(x):
 
 @numba.njit(parallel=True, cache=True, fastmath=False)  # exact comparisons: equal to the torch reference
 def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarray, radius: int, sigma_color: float,
-                           sigma_space: float, jump: float) -> np.ndarray:
+                           sigma_space: float, jump: float, stride: int, band: int) -> np.ndarray:
     """Joint weighted median of ``disp`` (H, W) float32 guided by ``guide`` (C, H, W) float32: see
     :func:`stereonet.select.filters.weighted_median_filter` (same rule; weights and sums in float64). The
     median is found without sorting the window: a histogram of 1 px bins finds the bin where the cumulative
     weight crosses half the total, 256 sub-bins of that bin narrow it down, and only the crossing sub-bin's
-    samples are sorted (by value, ties in raster order), which gives the same value as sorting them all."""
+    samples are sorted (by value, ties in raster order), which gives the same value as sorting them all. The window's
+    samples lie at offsets that are multiples of ``stride`` (``rk = radius // stride`` of them each way); a pixel is
+    filtered when a discontinuity lies within ``band`` px (Chebyshev)."""
     C, H, W = guide.shape
     out = disp.copy()
     inv_c = -0.5 / (sigma_color * sigma_color)
     inv_s = -0.5 / (sigma_space * sigma_space)
-    k = 2 * radius + 1
+    rk = radius // stride
+    k = 2 * rk + 1
     space = np.empty(k * k, np.float64)
     for i in range(k):
         for j in range(k):
-            space[i * k + j] = ((i - radius) ** 2 + (j - radius) ** 2) * inv_s
+            space[i * k + j] = (((i - rk) * stride) ** 2 + ((j - rk) * stride) ** 2) * inv_s
     edge = np.zeros((H, W), np.bool_)
     for y in numba.prange(H):
         for x in range(W):
@@ -218,14 +221,14 @@ def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarra
                     edge[y, x] = True
     colhit = np.zeros((H, W), np.bool_)
     for y in numba.prange(H):
-        for yy in range(max(y - radius, 0), min(y + radius, H - 1) + 1):
+        for yy in range(max(y - band, 0), min(y + band, H - 1) + 1):
             for x in range(W):
                 colhit[y, x] |= edge[yy, x]
     near = np.zeros((H, W), np.bool_)
     for y in numba.prange(H):
         for x in range(W):
             h = False
-            for xx in range(max(x - radius, 0), min(x + radius, W - 1) + 1):
+            for xx in range(max(x - band, 0), min(x + band, W - 1) + 1):
                 h |= colhit[y, xx]
             near[y, x] = h
     gmin = np.inf
@@ -258,28 +261,30 @@ def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarra
         for x in range(W):
             if not near[y, x]:
                 continue
-            y0, y1 = max(y - radius, 0), min(y + radius, H - 1)
-            x0, x1 = max(x - radius, 0), min(x + radius, W - 1)
-            m = x1 - x0 + 1
+            jy0, jy1 = -min(rk, y // stride), min(rk, (H - 1 - y) // stride)  # window offsets / stride
+            jx0, jx1 = -min(rk, x // stride), min(rk, (W - 1 - x) // stride)
+            x0 = x + jx0 * stride
+            m = jx1 - jx0 + 1
             for c in range(C):
                 gc[c] = np.float64(guide[c, y, x])
             n = 0
             blo, bhi = n_bins, -1
-            for yy in range(y0, y1 + 1):
+            for jy in range(jy0, jy1 + 1):
+                yy = y + jy * stride
                 for i in range(m):
                     dcrow[i] = 0.0
                 for c in range(C):
                     g0 = gc[c]
                     for i in range(m):
-                        g = np.float64(guide[c, yy, x0 + i]) - g0
+                        g = np.float64(guide[c, yy, x0 + i * stride]) - g0
                         dcrow[i] += g * g
-                srow = (yy - y + radius) * k + (x0 - x + radius)
+                srow = (jy + rk) * k + (jx0 + rk)
                 for i in range(m):
                     wrow[i] = exp_sq(dcrow[i] * inv_c + space[srow + i])
                 for i in range(m):
-                    b = binmap[yy, x0 + i]
+                    b = binmap[yy, x0 + i * stride]
                     if b >= 0:
-                        vals[n] = disp[yy, x0 + i]
+                        vals[n] = disp[yy, x0 + i * stride]
                         wts[n] = wrow[i]
                         bins[n] = b
                         blo = min(blo, b)

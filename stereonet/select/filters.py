@@ -106,7 +106,8 @@ def check_wmf_options(radius, sigma_color, radius_name: str = "wmf_radius",
 
 def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int = 7, sigma_color: float = 0.1,
                            sigma_space: float | None = None, valid: torch.Tensor | None = None,
-                           jump: float = 1.0, backend: str = "auto") -> torch.Tensor:
+                           jump: float = 1.0, stride: int = 1, band: int | None = None,
+                           backend: str = "auto") -> torch.Tensor:
     """Joint weighted median filter guided by the image (the textbook post-step against foreground fattening).
 
     Each pixel takes the weighted median of the disparities in its ``(2 radius + 1)²`` window (clipped at the
@@ -131,6 +132,11 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         valid: optional bool :math:`(B, 1, H, W)`: only valid pixels vote, and never a non-finite value (every
             output pixel is defined where some neighbour votes; a pixel without voting neighbours keeps its value).
         jump: the step (px) between 4-neighbours that makes a discontinuity.
+        stride: spacing of the window's samples (>= 1): only neighbours at offsets that are multiples of ``stride``
+            vote (``radius // stride`` of them each way; 1 = every pixel of the window). Less work by ``stride²``
+            with the same spatial reach.
+        band: a pixel is filtered when a discontinuity lies within ``band`` px of it (Chebyshev distance, >= 0,
+            to the left or upper pixel of the step); ``None`` = ``radius`` (its window holds one).
         backend: ``"auto"`` (numba for CPU input without gradient), ``"torch"`` or ``"numba"``.
 
     Returns:
@@ -148,6 +154,11 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
             raise StereoInputError(f"{name}: expected a value > 0, got {value!r}")
     if not jump >= 0:
         raise StereoInputError(f"jump: expected a value >= 0 pixels, got {jump!r}")
+    if isinstance(stride, bool) or not isinstance(stride, int) or not 1 <= stride <= radius:
+        raise StereoInputError(f"stride: expected an integer from 1 to radius ({radius}), got {stride!r}")
+    band = radius if band is None else band
+    if isinstance(band, bool) or not isinstance(band, int) or band < 0:
+        raise StereoInputError(f"band: expected an integer >= 0 pixels (or None = radius), got {band!r}")
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     valid = torch.isfinite(disp) if valid is None else valid & torch.isfinite(disp)  # NaN and inf never vote
@@ -156,17 +167,20 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         g = guide.detach().to("cpu", torch.float32).numpy()
         v = valid.detach().cpu().numpy().astype(np.bool_)
         out = np.stack([weighted_median_kernel(d[b, 0], np.ascontiguousarray(g[b]), v[b, 0], int(radius),
-                                               float(sigma_color), float(sigma_space), float(jump))
+                                               float(sigma_color), float(sigma_space), float(jump), int(stride),
+                                               int(band))
                         for b in range(d.shape[0])])[:, None]
         return torch.from_numpy(out).to(disp.device, disp.dtype)
-    return _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump)
+    return _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump, stride, band)
 
 
-def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump, rows=None):
+def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump, stride=1, band=None, rows=None):
     """The reference of :func:`weighted_median_filter` (unfolded windows, float64 weights), in bands of ``rows``
     rows (default: about 128 MB per unfolded float64 tensor) so that its memory stays bounded at any size."""
     b, c, h, w = guide.shape
-    k = 2 * radius + 1
+    band = radius if band is None else band
+    rk = radius // stride  # samples each way, ``stride`` px apart
+    k, pad = 2 * rk + 1, rk * stride
     d = disp.to(torch.float32)
     d64 = d.to(torch.float64)
     edge = torch.zeros_like(valid)
@@ -174,19 +188,19 @@ def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space,
     step_y = ((d64[..., 1:, :] - d64[..., :-1, :]).abs() > jump) & valid[..., 1:, :] & valid[..., :-1, :]
     edge[..., :-1] |= step_x
     edge[..., :-1, :] |= step_y
-    near = F.max_pool2d(edge.to(torch.float32), k, 1, radius) > 0
+    near = F.max_pool2d(edge.to(torch.float32), 2 * band + 1, 1, band) > 0
     rows = rows or max(1, 2 ** 27 // (8 * k * k * w * b))
-    ky, kx = torch.meshgrid(torch.arange(k) - radius, torch.arange(k) - radius, indexing="ij")
+    ky, kx = torch.meshgrid((torch.arange(k) - rk) * stride, (torch.arange(k) - rk) * stride, indexing="ij")
     space = (ky.reshape(-1) ** 2 + kx.reshape(-1) ** 2).to(torch.float64).view(1, k * k, 1).to(d.device)
     out = d.clone()
     for y0 in range(0, h, rows):
         y1 = min(h, y0 + rows)
-        a0, a1 = max(0, y0 - radius), min(h, y1 + radius)  # the band with its halo (real rows inside the image)
+        a0, a1 = max(0, y0 - pad), min(h, y1 + pad)  # the band with its halo (real rows inside the image)
         bh = a1 - a0
         db, vb, gb = d[..., a0:a1, :], valid[..., a0:a1, :], guide[..., a0:a1, :].to(torch.float64)
-        vals = F.unfold(db, k, padding=radius)  # Bx(k*k)x(bh*W); samples outside the band are masked below
-        votes = F.unfold(vb.to(torch.float32), k, padding=radius) > 0.5
-        diff = F.unfold(gb, k, padding=radius).view(b, c, k * k, bh * w) - gb.reshape(b, c, 1, bh * w)
+        vals = F.unfold(db, k, dilation=stride, padding=pad)  # Bx(k*k)x(bh*W); samples outside are masked below
+        votes = F.unfold(vb.to(torch.float32), k, dilation=stride, padding=pad) > 0.5
+        diff = F.unfold(gb, k, dilation=stride, padding=pad).view(b, c, k * k, bh * w) - gb.reshape(b, c, 1, bh * w)
         log_w = diff.pow(2).sum(1) * (-0.5 / sigma_color ** 2) + space * (-0.5 / sigma_space ** 2)
         weights = torch.exp(log_w.clamp(min=WMF_MIN_LOG_WEIGHT)).masked_fill(~votes, 0.0)
         order = vals.masked_fill(~votes, float("inf")).sort(dim=1, stable=True).indices

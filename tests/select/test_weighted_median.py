@@ -52,11 +52,44 @@ def test_numba_equals_torch(channels, with_valid, radius):
         assert not torch.equal(a, disp)  # it did filter
 
 
+@pytest.mark.parametrize("channels,with_valid,radius,stride,band",
+                         [(1, False, 5, 2, None), (3, True, 9, 2, 4), (3, False, 9, 3, 0), (1, True, 4, 3, 6)])
+def test_strided_windows_and_bands_numba_equals_torch(channels, with_valid, radius, stride, band):
+    """Windows sampled every ``stride`` px and a narrower (or wider) band of filtered pixels: both backends equal on
+    shapes below and above the window, on every border; a band of 0 filters only the pixels beside a step."""
+    g = torch.Generator().manual_seed(10 * stride + radius)
+    for h, w in ((6, 9), (31, 45)):
+        disp = torch.rand(2, 1, h, w, generator=g) * 4
+        disp[..., w // 2:] += 6
+        guide = torch.rand(2, channels, h, w, generator=g)
+        guide[..., w // 2:] += 0.4
+        valid = (torch.rand(2, 1, h, w, generator=g) > 0.3) if with_valid else None
+        kw = dict(radius=radius, sigma_color=0.3, valid=valid, stride=stride, band=band)
+        a = weighted_median_filter(disp, guide, backend="numba", **kw)
+        assert torch.equal(a, weighted_median_filter(disp, guide, backend="torch", **kw))
+        assert not torch.equal(a, disp)
+        full = weighted_median_filter(disp, guide, radius=radius, sigma_color=0.3, valid=valid)
+        assert not torch.equal(a, full)  # fewer votes or pixels: a different filter
+
+
+def test_stride_one_and_band_radius_are_the_default_filter():
+    disp = 2 + torch.rand(1, 1, 30, 41, generator=torch.Generator().manual_seed(5)) * 0.4  # steps < 1 px
+    disp[..., 20:] += 8
+    guide = torch.rand(1, 3, 30, 41, generator=torch.Generator().manual_seed(6))
+    assert torch.equal(weighted_median_filter(disp, guide, radius=6, stride=1, band=6),
+                       weighted_median_filter(disp, guide, radius=6))
+    # band 0: only pixels with a step to a 4-neighbour change; the columns away from the step stay as they were
+    out = weighted_median_filter(disp, guide, radius=6, band=0)
+    assert torch.equal(out[..., :19], disp[..., :19]) and torch.equal(out[..., 21:], disp[..., 21:])
+    assert not torch.equal(out, disp)
+
+
 def test_bad_input_names_the_argument():
     disp, guide = _fattened()
     for kwargs, name in ((dict(radius=0), "radius"), (dict(radius=2.5), "radius"), (dict(sigma_color=0.0), "sigma_color"),
                          (dict(sigma_space=-1.0), "sigma_space"), (dict(jump=-1.0), "jump"),
-                         (dict(backend="cuda"), "backend")):
+                         (dict(backend="cuda"), "backend"), (dict(radius=3, stride=4), "stride"),
+                         (dict(stride=0), "stride"), (dict(band=-1), "band"), (dict(band=1.5), "band")):
         with pytest.raises(StereoInputError, match=name):
             weighted_median_filter(disp, guide, **kwargs)
     with pytest.raises(StereoInputError, match="guide"):
