@@ -158,10 +158,6 @@ def speckle_kernel(disp: np.ndarray, valid: np.ndarray, max_size: int, max_diff:
     return out
 
 
-WMF_SORT_DIRECTLY = 24
-"""The weighted median sorts the crossing 1 px bin's samples directly when it holds at most this many (else 256
-sub-bins first)."""
-
 WMF_MIN_LOG_WEIGHT = -45.0
 """The weighted median's log-weights are floored here (weights >= e^-45 ~ 3e-20), in every backend."""
 
@@ -200,9 +196,8 @@ def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarra
     """Joint weighted median of ``disp`` (H, W) float32 guided by ``guide`` (C, H, W) float32: see
     :func:`stereonet.select.filters.weighted_median_filter` (same rule; weights and sums in float64). The
     median is found without sorting the window: a histogram of 1 px bins finds the bin where the cumulative
-    weight crosses half the total; when that bin holds more than :data:`WMF_SORT_DIRECTLY` samples, 256 sub-bins
-    of it narrow them down to the crossing sub-bin's; only those are sorted (by value, ties in raster order),
-    which gives the same value as sorting them all. The window's
+    weight crosses half the total, 256 sub-bins of that bin narrow it down, and only the crossing sub-bin's
+    samples are sorted (by value, ties in raster order), which gives the same value as sorting them all. The window's
     samples lie at offsets that are multiples of ``stride`` (``rk = radius // stride`` of them each way); a pixel is
     filtered when a discontinuity lies within ``band`` px (Chebyshev)."""
     C, H, W = guide.shape
@@ -310,30 +305,24 @@ def weighted_median_kernel(disp: np.ndarray, guide: np.ndarray, valid: np.ndarra
             while b < bhi and acc + hist[b] < half:
                 acc += hist[b]
                 b += 1
-            cnt = 0  # the crossing 1 px bin's members, in raster order
+            # within the crossing 1 px bin: 256 fine bins, then sort only the crossing fine bin's members
+            for f in range(256):
+                fine[f] = 0.0
+            base = np.float64(b + fmin)
             for i in range(n):
                 if bins[i] == b:
+                    f = min(int((np.float64(vals[i]) - base) * 256.0), 255)
+                    fidx[i] = f
+                    fine[f] += wts[i]
+            f = 0
+            while f < 255 and acc + fine[f] < half:
+                acc += fine[f]
+                f += 1
+            cnt = 0
+            for i in range(n):
+                if bins[i] == b and fidx[i] == f:
                     members[cnt] = i
                     cnt += 1
-            if cnt > WMF_SORT_DIRECTLY:  # 256 fine bins narrow them down to the crossing fine bin's members
-                for f in range(256):
-                    fine[f] = 0.0
-                base = np.float64(b + fmin)
-                for j in range(cnt):
-                    i = members[j]
-                    f = min(int((np.float64(vals[i]) - base) * 256.0), 255)
-                    fidx[j] = f
-                    fine[f] += wts[i]
-                f = 0
-                while f < 255 and acc + fine[f] < half:
-                    acc += fine[f]
-                    f += 1
-                c2 = 0
-                for j in range(cnt):
-                    if fidx[j] == f:
-                        members[c2] = members[j]
-                        c2 += 1
-                cnt = c2
             for a in range(1, cnt):
                 cur = members[a]
                 j = a - 1
