@@ -36,7 +36,8 @@ seeds 5242/5243 (the smaller weighted median for speed), ``val2ag``/``val4ag`` o
 5248/5249 and ``wb2g``/``wb4g`` (weak_background 1) on seeds 5250/5251 (a chooser trained on sgm's filtered map),
 ``val2ai``/``val4ai`` on seeds 5252/5253 and ``wb2h``/``wb4h`` (weak_background 1) on seeds 5254/5255 (the thirty-third
 session's strided weighted median: selection), ``val2aj``/``val4aj`` on seeds 5256/5257 and ``wb2i``/``wb4i``
-(weak_background 1) on seeds 5258/5259 (its confirmation); any
+(weak_background 1) on seeds 5258/5259 (its confirmation), ``val2ak``/``val4ak`` on seeds 5260/5261 and ``wb2j``/``wb4j``
+(weak_background 1) on seeds 5262/5263 (the second candidate's confirmation); any
 other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -94,7 +95,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2ai": (12, 5252, 2), "val4ai": (8, 5253, 4),
         "wb2h": (12, 5254, 2, {"weak_background": 1.0}), "wb4h": (8, 5255, 4, {"weak_background": 1.0}),
         "val2aj": (12, 5256, 2), "val4aj": (8, 5257, 4),
-        "wb2i": (12, 5258, 2, {"weak_background": 1.0}), "wb4i": (8, 5259, 4, {"weak_background": 1.0})}
+        "wb2i": (12, 5258, 2, {"weak_background": 1.0}), "wb4i": (8, 5259, 4, {"weak_background": 1.0}),
+        "val2ak": (12, 5260, 2), "val4ak": (8, 5261, 4),
+        "wb2j": (12, 5262, 2, {"weak_background": 1.0}), "wb4j": (8, 5263, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
