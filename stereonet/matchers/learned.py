@@ -35,7 +35,13 @@ from stereonet.models.layers import InputPadder, resize_disparity
 from stereonet.models.siamese import siamese_cost_volume, tower_dtype
 from stereonet.models.smd import MixtureParams, error_probability, mixture_outputs, padded_query_grid
 from stereonet.models.weights import default_weights_path, load_weights
-from stereonet.select.filters import WMF_RADIUS, WMF_SIGMA_COLOR, check_wmf_options, weighted_median_filter
+from stereonet.select.filters import (
+    WMF_RADIUS,
+    WMF_SIGMA_COLOR,
+    WMF_STRIDE,
+    check_wmf_options,
+    weighted_median_filter,
+)
 from stereonet.types import StereoOutput
 
 BACKENDS = ("torch", "onnx")
@@ -363,7 +369,7 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
           description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt), then an image-guided weighted median")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                        backend: str = "torch", wmf_radius: int = WMF_RADIUS, wmf_sigma_color: float = WMF_SIGMA_COLOR,
-                       base_wmf_radius: int = 0, base_wmf_bases: tuple[str, ...] | None = None,
+                       wmf_stride: int = WMF_STRIDE, base_wmf_radius: int = 0, base_wmf_bases: tuple[str, ...] | None = None,
                        **options) -> StereoOutput:
     """The maps of the weights file's base matchers (its ``bases``; options go to ``sgm``), each with its invalid
     pixels filled, then :class:`~stereonet.models.refine.RefineNet` reads the images and the maps with their
@@ -371,15 +377,16 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     candidate values. The shipped ``refine.pt`` chooses between ``siamese-census-sgm`` and ``sgm`` at each pixel
     (model card, seventeenth session); older files refine ``sgm`` alone. Then, unless ``wmf_radius`` is 0, the
     image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, radius ``wmf_radius``,
-    ``wmf_sigma_color``) near the map's discontinuities, against foreground fattening (model card, thirty-second
-    session); ``extras["unfiltered"]`` keeps the choice's own map. ``base_wmf_radius`` (0 = off): the base maps (those named
+    ``wmf_sigma_color``, votes every ``wmf_stride`` px of the window, capped at the radius) near the map's
+    discontinuities, against foreground fattening (model card, thirty-second and thirty-third sessions);
+    ``extras["unfiltered"]`` keeps the choice's own map. ``base_wmf_radius`` (0 = off): the base maps (those named
     in ``base_wmf_bases``, None = all) go through the same filter (that radius, ``wmf_sigma_color``) before the
-    network reads them; a weights file whose network was trained on filtered maps (``filtered_bases``) gets them
-    so by default. Every pixel is valid;
+    network reads them (every pixel of the window votes, as those networks were trained); a weights file whose
+    network was trained on filtered maps (``filtered_bases``) gets them so by default. Every pixel is valid;
     the confidence is the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
-    check_wmf_options(wmf_radius, wmf_sigma_color)
+    check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     check_wmf_options(base_wmf_radius, wmf_sigma_color, radius_name="base_wmf_radius")
     net = load_network("refine", checkpoint)
     cross = getattr(net, "evidence", "pixel") == "cross"
@@ -397,7 +404,8 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     extras = {"base": base[:, :1]}
     if wmf_radius:
         extras["unfiltered"] = disp
-        disp = weighted_median_filter(disp, left, radius=wmf_radius, sigma_color=wmf_sigma_color)
+        disp = weighted_median_filter(disp, left, radius=wmf_radius, sigma_color=wmf_sigma_color,
+                                      stride=min(wmf_stride, wmf_radius))
     return StereoOutput(disp, torch.ones_like(valid[:, :1]), confidence=confidence[:, :1], extras=extras)
 
 

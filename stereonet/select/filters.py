@@ -89,19 +89,25 @@ def speckle_filter(disp: torch.Tensor, valid: torch.Tensor, max_size: int = 100,
 
 # The weighted median after sgm-refine's choice (and sgm's opt-in one): radius 9 px, colour scale 0.2, chosen on
 # fresh data_gen sets only (docs/experiments/wmf.txt: selection on wsel2/wsel4/wselb2/wselb4, confirmed on
-# wmf2/wmf4/wmfb2/wmfb4)
+# wmf2/wmf4/wmfb2/wmfb4); votes every 2nd px of the window, a third of the work (docs/experiments/wmf_stride.txt:
+# selection on val2ai/val4ai/wb2h/wb4h, confirmed on val2ak/val4ak/wb2j/wb4j)
 WMF_RADIUS = 9
 WMF_SIGMA_COLOR = 0.2
+WMF_STRIDE = 2
 
 
-def check_wmf_options(radius, sigma_color, radius_name: str = "wmf_radius",
-                      sigma_name: str = "wmf_sigma_color") -> None:
-    """A matcher's weighted-median options: ``radius`` an integer >= 0 (0 = no filter), ``sigma_color`` > 0;
-    a one-line :class:`StereoInputError` naming the option otherwise."""
+def check_wmf_options(radius, sigma_color, stride=1, radius_name: str = "wmf_radius",
+                      sigma_name: str = "wmf_sigma_color", stride_name: str = "wmf_stride") -> None:
+    """A matcher's weighted-median options: ``radius`` an integer >= 0 (0 = no filter), ``sigma_color`` > 0,
+    ``stride`` an integer >= 1 (the matchers cap it at the radius); a one-line :class:`StereoInputError` naming the
+    option otherwise."""
     if isinstance(radius, bool) or not isinstance(radius, int) or radius < 0:
         raise StereoInputError(f"{radius_name}: expected an integer >= 0 (0 = no weighted median), got {radius!r}")
     if not sigma_color > 0:
         raise StereoInputError(f"{sigma_name}: expected a value > 0, got {sigma_color!r}")
+    if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
+        raise StereoInputError(f"{stride_name}: expected an integer >= 1 (1 = every pixel of the window votes), "
+                               f"got {stride!r}")
 
 
 def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int = 7, sigma_color: float = 0.1,

@@ -413,11 +413,11 @@ def test_siamese_census_sgm_keeps_its_fixed_aggregate():
 
 
 def test_sgm_refine_ends_with_the_weighted_median_of_its_choice(tmp_path):
-    """By default the matcher's map is the image-guided weighted median (WMF_RADIUS, WMF_SIGMA_COLOR) of the
-    choice, which extras["unfiltered"] keeps and wmf_radius=0 returns; other settings reach the filter; bad
-    settings are one-line errors naming the option."""
+    """By default the matcher's map is the image-guided weighted median (WMF_RADIUS, WMF_SIGMA_COLOR, WMF_STRIDE)
+    of the choice, which extras["unfiltered"] keeps and wmf_radius=0 returns; other settings reach the filter (the
+    stride capped at the radius); bad settings are one-line errors naming the option."""
     from stereonet.matchers import match
-    from stereonet.matchers.learned import WMF_RADIUS, WMF_SIGMA_COLOR
+    from stereonet.matchers.learned import WMF_RADIUS, WMF_SIGMA_COLOR, WMF_STRIDE
     from stereonet.select.filters import weighted_median_filter
 
     config = {"channels": 4, "dilations": [1], "mode": "select", "radii": [2], "bases": ["siamese-census-sgm", "sgm"]}
@@ -431,12 +431,19 @@ def test_sgm_refine_ends_with_the_weighted_median_of_its_choice(tmp_path):
     plain = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=0)
     out = match("sgm-refine", left, right, 16, checkpoint=str(path))
     assert torch.equal(out.extras["unfiltered"], plain.disparity)
-    expected = weighted_median_filter(plain.disparity, left, radius=WMF_RADIUS, sigma_color=WMF_SIGMA_COLOR)
+    expected = weighted_median_filter(plain.disparity, left, radius=WMF_RADIUS, sigma_color=WMF_SIGMA_COLOR,
+                                      stride=WMF_STRIDE)
+    assert WMF_STRIDE > 1 and not torch.equal(expected, weighted_median_filter(
+        plain.disparity, left, radius=WMF_RADIUS, sigma_color=WMF_SIGMA_COLOR))  # the stride matters here
     assert torch.equal(out.disparity, expected) and not torch.equal(out.disparity, plain.disparity)
-    other = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=3, wmf_sigma_color=0.05)
+    other = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=3, wmf_sigma_color=0.05,
+                  wmf_stride=1)
     assert torch.equal(other.disparity, weighted_median_filter(plain.disparity, left, radius=3, sigma_color=0.05))
+    capped = match("sgm-refine", left, right, 16, checkpoint=str(path), wmf_radius=1, wmf_stride=4)
+    assert torch.equal(capped.disparity, weighted_median_filter(plain.disparity, left, radius=1,
+                                                                sigma_color=WMF_SIGMA_COLOR))
     for bad, name in (({"wmf_radius": -1}, "wmf_radius"), ({"wmf_radius": 1.5}, "wmf_radius"),
-                      ({"wmf_sigma_color": 0.0}, "wmf_sigma_color")):
+                      ({"wmf_sigma_color": 0.0}, "wmf_sigma_color"), ({"wmf_stride": 0}, "wmf_stride")):
         with pytest.raises(StereoInputError, match=name):
             match("sgm-refine", left, right, 16, checkpoint=str(path), **bad)
 
