@@ -37,7 +37,9 @@ seeds 5242/5243 (the smaller weighted median for speed), ``val2ag``/``val4ag`` o
 ``val2ai``/``val4ai`` on seeds 5252/5253 and ``wb2h``/``wb4h`` (weak_background 1) on seeds 5254/5255 (the thirty-third
 session's strided weighted median: selection), ``val2aj``/``val4aj`` on seeds 5256/5257 and ``wb2i``/``wb4i``
 (weak_background 1) on seeds 5258/5259 (its confirmation), ``val2ak``/``val4ak`` on seeds 5260/5261 and ``wb2j``/``wb4j``
-(weak_background 1) on seeds 5262/5263 (the second candidate's confirmation); any
+(weak_background 1) on seeds 5262/5263 (the second candidate's confirmation), ``val2al``/``val4al`` on seeds 5264/5265
+and ``wb2k``/``wb4k`` (weak_background 1) on seeds 5266/5267 (the census pre-filter: selection), ``val2am``/``val4am``
+on seeds 5268/5269 and ``wb2l``/``wb4l`` (weak_background 1) on seeds 5270/5271 (its confirmation); any
 other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -97,7 +99,11 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2aj": (12, 5256, 2), "val4aj": (8, 5257, 4),
         "wb2i": (12, 5258, 2, {"weak_background": 1.0}), "wb4i": (8, 5259, 4, {"weak_background": 1.0}),
         "val2ak": (12, 5260, 2), "val4ak": (8, 5261, 4),
-        "wb2j": (12, 5262, 2, {"weak_background": 1.0}), "wb4j": (8, 5263, 4, {"weak_background": 1.0})}
+        "wb2j": (12, 5262, 2, {"weak_background": 1.0}), "wb4j": (8, 5263, 4, {"weak_background": 1.0}),
+        "val2al": (12, 5264, 2), "val4al": (8, 5265, 4),
+        "wb2k": (12, 5266, 2, {"weak_background": 1.0}), "wb4k": (8, 5267, 4, {"weak_background": 1.0}),
+        "val2am": (12, 5268, 2), "val4am": (8, 5269, 4),
+        "wb2l": (12, 5270, 2, {"weak_background": 1.0}), "wb4l": (8, 5271, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

@@ -323,7 +323,8 @@ def sgm_base(left: torch.Tensor, right: torch.Tensor, max_disp: int, **sgm_optio
 
 
 def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, cross: bool = False,
-                 wmf: tuple[int, float] | None = None, wmf_bases: tuple[str, ...] | None = None, **sgm_options):
+                 wmf: tuple[int, float] | None = None, wmf_bases: tuple[str, ...] | None = None,
+                 prefilter: str | None = None, **sgm_options):
     """The maps of the matchers ``bases`` (:data:`stereonet.models.refine.BASES`) as a RefineNet reads them:
     each filled by the shared rule, stacked along the channels as ``(disparity, valid, confidence)``, each
     :math:`(B, M, H, W)`. ``sgm_options`` go to ``sgm``; the Siamese matchers run with the shipped weights.
@@ -332,7 +333,9 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     says how each base's cost rates each base's filled map (``evidence="cross"`` networks). ``wmf=(radius,
     sigma_color)``: each filled map then goes through the image-guided weighted median
     (:func:`~stereonet.select.filters.weighted_median_filter`) before it is stacked (validity and confidence as before;
-    the cross costs rate the unfiltered maps); ``wmf_bases``: only the maps of these bases (None: every one)."""
+    the cross costs rate the unfiltered maps); ``wmf_bases``: only the maps of these bases (None: every one).
+    ``prefilter``: the census cost of the SGM-family bases (:data:`~stereonet.models.refine.CROSS_BASES`) reads
+    pre-filtered images (``sgm``'s option of that name); the Siamese tower reads the images as they are."""
     from stereonet.matchers import get_matcher
     from stereonet.models.refine import BASES, CROSS_BASES, cross_costs
     from stereonet.select.fill import fill_occlusions
@@ -343,7 +346,8 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
             raise StereoInputError(f"bases: unknown base matcher {name!r}; expected one of {', '.join(BASES)}")
         if cross and name not in CROSS_BASES:
             raise StereoInputError(f"bases: cross costs need SGM-family bases ({', '.join(CROSS_BASES)}), got {name!r}")
-        options = dict(sgm_options if name == "sgm" else {}, **({"keep_volume": "fixed"} if cross else {}))
+        options = dict(sgm_options if name == "sgm" else {}, **({"keep_volume": "fixed"} if cross else {}),
+                       **({"prefilter": prefilter} if prefilter is not None and name in CROSS_BASES else {}))
         out = get_matcher(name, **options)(left, right, max_disp)
         confidence = out.confidence if out.confidence is not None else out.valid.to(left.dtype)
         maps.append(fill_occlusions(out.disparity, out.valid))
@@ -369,7 +373,8 @@ def refine_bases(bases, left: torch.Tensor, right: torch.Tensor, max_disp: int, 
           description="A learned per-pixel choice between siamese-census-sgm's and sgm's filled maps (weights/refine.pt), then an image-guided weighted median")
 def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                        backend: str = "torch", wmf_radius: int = WMF_RADIUS, wmf_sigma_color: float = WMF_SIGMA_COLOR,
-                       wmf_stride: int = WMF_STRIDE, base_wmf_radius: int = 0, base_wmf_bases: tuple[str, ...] | None = None,
+                       wmf_stride: int = WMF_STRIDE, base_wmf_radius: int = 0,
+                       base_wmf_bases: tuple[str, ...] | None = None, prefilter: str | None = None,
                        **options) -> StereoOutput:
     """The maps of the weights file's base matchers (its ``bases``; options go to ``sgm``), each with its invalid
     pixels filled, then :class:`~stereonet.models.refine.RefineNet` reads the images and the maps with their
@@ -382,7 +387,9 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     ``extras["unfiltered"]`` keeps the choice's own map. ``base_wmf_radius`` (0 = off): the base maps (those named
     in ``base_wmf_bases``, None = all) go through the same filter (that radius, ``wmf_sigma_color``) before the
     network reads them (every pixel of the window votes, as those networks were trained); a weights file whose
-    network was trained on filtered maps (``filtered_bases``) gets them so by default. Every pixel is valid;
+    network was trained on filtered maps (``filtered_bases``) gets them so by default. ``prefilter``: the census
+    cost of both SGM-family bases reads pre-filtered images (``sgm``'s option; :func:`refine_bases`). Every pixel
+    is valid;
     the confidence is the first map's (the choice does not re-rank it). ``backend``: "torch" only."""
     if backend != "torch":
         raise StereoInputError(f"backend: sgm-refine runs on 'torch' only, got {backend!r}")
@@ -396,7 +403,7 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     elif getattr(net, "filtered_bases", ()):  # a network trained on filtered maps reads them so
         wmf, wmf_bases = (WMF_RADIUS, WMF_SIGMA_COLOR), net.filtered_bases
     base, valid, confidence, *costs = refine_bases(net.bases, left, right, max_disp, cross=cross,
-                                                   wmf=wmf, wmf_bases=wmf_bases, **options)
+                                                   wmf=wmf, wmf_bases=wmf_bases, prefilter=prefilter, **options)
     dtype = next(net.parameters()).dtype  # the network's own precision; the map comes back in the input's
     with torch.no_grad():
         disp = net.to(left.device)(left.to(dtype), right.to(dtype), base.to(dtype), valid, confidence.to(dtype),

@@ -44,6 +44,7 @@ from stereonet.aggregate.sgm import (
 )
 from stereonet.checks import StereoInputError, check_window
 from stereonet.cost import build_cost_volume
+from stereonet.cost.prefilter import prefilter_image
 from stereonet.cost.volume import (
     CENSUS_U8_MAX_WINDOW,
     census_pixel_volumes_u8,
@@ -309,10 +310,15 @@ def sgm_core(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) 
     run the same 16-bit path on it (uint8 in units of ``mix_step``; a mix outside 0..255 units falls back to
     the float32 kernel, same numbers); other costs are mixed unrounded. ``p2_maps`` (B, paths, H, W): large-jump
     penalties per pixel and path direction instead of ``P2`` and its image rule (``sgm-penalties``' learned maps;
-    rounded to the penalty grid, each at least ``P1``).
+    rounded to the penalty grid, each at least ``P1``). ``prefilter`` (None, "vertical" or "binomial"): the images
+    the cost reads are smoothed first (:func:`~stereonet.cost.prefilter.prefilter_image`; against sensor noise and
+    sub-pixel vertical offsets); the penalties' image rule reads the left image unfiltered.
     """
     opts = from_opencv_names({**SGM_DEFAULTS, **options})
     P1, P2, p2_alpha, paths = opts.pop("P1"), opts.pop("P2"), opts.pop("p2_alpha"), opts.pop("paths")
+    prefilter = opts.pop("prefilter", None)
+    # the cost reads the pre-filtered images; the penalties' image rule (p2_alpha) reads the left image as it is
+    cost_left, cost_right = prefilter_image(left, prefilter), prefilter_image(right, prefilter)
     keep_volume = opts.pop("keep_volume", False)
     fixed_volume = isinstance(keep_volume, str) and keep_volume == "fixed"
     if isinstance(keep_volume, str) and not fixed_volume:
@@ -347,7 +353,7 @@ def sgm_core(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) 
         # numba aggregation (a quarter of the memory traffic of the float32 volume; tested equal); a mixed-in
         # volume is added by one numba pass per image (mix_costs_hwd, the float32 sum of the torch path)
         directions = check_sgm_options(P1, P2, paths, p2_alpha)
-        vols = census_pixel_volumes_u8(left, right, max_disp, census_window)
+        vols = census_pixel_volumes_u8(cost_left, cost_right, max_disp, census_window)
         bits = census_window * census_window  # >= every census distance and the out-of-image fill
         s = None if extra is not None or keep_volume else fixed_point_scale_for(P1, P2, directions, step, bits)
         if extra is not None and mix_step is not None and not keep_volume:
@@ -381,7 +387,7 @@ def sgm_core(left: torch.Tensor, right: torch.Tensor, max_disp: int, **options) 
         agg = sgm_aggregate_hwd(vols, P1, P2, directions, left, p2_alpha, step, p2_maps=maps).to(left.device)
         del vols
     else:
-        vol = build_cost_volume(left, right, max_disp, cost=cost_name, window=window, **cost_opts)
+        vol = build_cost_volume(cost_left, cost_right, max_disp, cost=cost_name, window=window, **cost_opts)
         if extra is not None:  # (w_own, w_extra, volume): a learned cost mixed in (siamese-census-sgm)
             w_own, w_extra, other = extra
             vol = w_own * vol + w_extra * other.to(vol)

@@ -1,0 +1,54 @@
+"""Issue 14, thirty-third session: how the matchers degrade when the right view is imperfect in the ways real rigs and
+phone pairs are (a diagnostic on data_gen renders, no decision): a vertical offset of the right image (residual
+rectification error; sub-pixel by bilinear resampling), a lower exposure of the right camera (gain), a different
+response curve (gamma), and sensor noise on both views. The ground truth stays the left view's (a vertical offset makes
+every match 0.5-1 px off the scanline, which is what a matcher must tolerate, not a change of the disparity).
+Prints the mean bad-2 (eval.py's metrics after the shared fill) of each method under each perturbation.
+Run: python docs/experiments/robustness_probe.py "sgm,sgm-refine,opencv-sgbm" "val2ai" """
+import statistics
+import sys
+
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, "docs/experiments")
+from val_sets import expand, items  # noqa: E402
+
+from stereonet import matchers  # noqa: E402
+from stereonet.evaluation import apply_fill, pair_metrics  # noqa: E402
+
+
+def shifted(img: torch.Tensor, dy: float) -> torch.Tensor:
+    """``img`` (B, C, H, W) moved down by ``dy`` px (bilinear; border replicated)."""
+    _, _, h, w = img.shape
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=img.dtype), torch.arange(w, dtype=img.dtype), indexing="ij")
+    grid = torch.stack([(2 * xs + 1) / w - 1, (2 * (ys - dy) + 1) / h - 1], -1)[None]
+    return F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+PERTURBATIONS = {
+    "clean": lambda left, right, g: (left, right),
+    "right down 0.5 px": lambda left, right, g: (left, shifted(right, 0.5)),
+    "right down 1 px": lambda left, right, g: (left, shifted(right, 1.0)),
+    "right gain 0.6": lambda left, right, g: (left, right * 0.6),
+    "right gamma 1.6": lambda left, right, g: (left, right.clamp(0, 1) ** 1.6),
+    "noise 0.03 both": lambda left, right, g: ((left + 0.03 * torch.randn(left.shape, generator=g)).clamp(0, 1),
+                                                (right + 0.03 * torch.randn(right.shape, generator=g)).clamp(0, 1)),
+}
+
+methods = [matchers.register_checkpoint_variant(a) for a in sys.argv[1].split(",")]
+specs = expand(sys.argv[2])
+rows = {}
+for _spec, item in items(specs):
+    gen = torch.Generator().manual_seed(0)
+    for pname, perturb in PERTURBATIONS.items():
+        left, right = perturb(item["left"][None], item["right"][None], gen)
+        for m in methods:
+            with torch.no_grad():
+                out = apply_fill(matchers.match(m, left, right, int(item["max_disp"])))
+            rows.setdefault((m, pname), []).append(pair_metrics(out, item)["bad2"])
+names = list(PERTURBATIONS)
+print("| method | " + " | ".join(names) + " |")
+print("|---" * (len(names) + 1) + "|")
+for m in methods:
+    print(f"| {m} | " + " | ".join(f"{statistics.fmean(rows[(m, p)]):.2f}" for p in names) + " |")
