@@ -490,6 +490,30 @@ def test_refine_bases_filter_only_the_named_maps():
     assert not torch.equal(only[:, 1:], plain[:, 1:])
 
 
+def test_refine_bases_prefilter_reaches_both_sgm_family_bases(tmp_path):
+    """prefilter: each SGM-family base's map is that matcher's own with the option, filled; sgm-refine passes it on."""
+    from stereonet.matchers import match
+    from stereonet.matchers.learned import refine_bases
+    from stereonet.select.fill import fill_occlusions
+
+    left, right = _pair(40, 72, 2)
+    g = torch.Generator().manual_seed(4)
+    left = (left + 0.05 * torch.randn(left.shape, generator=g)).clamp(0, 1)
+    right = (right + 0.05 * torch.randn(right.shape, generator=g)).clamp(0, 1)
+    bases = ("siamese-census-sgm", "sgm")
+    plain = refine_bases(bases, left, right, 16)[0]
+    smooth = refine_bases(bases, left, right, 16, prefilter="binomial")[0]
+    for i, name in enumerate(bases):
+        own = match(name, left, right, 16, prefilter="binomial")
+        assert torch.equal(smooth[:, i:i + 1], fill_occlusions(own.disparity, own.valid))
+        assert not torch.equal(smooth[:, i:i + 1], plain[:, i:i + 1])
+    config = {"channels": 4, "dilations": [1], "mode": "select", "radii": [2], "bases": list(bases)}
+    path = tmp_path / "refine.pt"
+    save_weights(path, "refine", config, RefineNet(**config))
+    out = match("sgm-refine", left, right, 16, checkpoint=str(path), prefilter="binomial", wmf_radius=0)
+    assert torch.equal(out.extras["base"], smooth[:, :1])
+
+
 def test_a_network_trained_on_filtered_maps_reads_them_so(tmp_path):
     """A weights file with filtered_bases: the matcher filters those maps (sgm-refine's radius and colour scale)
     before the choice without being told; an unknown name is refused naming the option."""
