@@ -4,7 +4,8 @@ rectification error; sub-pixel by bilinear resampling), a lower exposure of the 
 response curve (gamma), and sensor noise on both views. The ground truth stays the left view's (a vertical offset makes
 every match 0.5-1 px off the scanline, which is what a matcher must tolerate, not a change of the disparity).
 Prints the mean bad-2 (eval.py's metrics after the shared fill) of each method under each perturbation.
-Run: python docs/experiments/robustness_probe.py "sgm,sgm-refine,opencv-sgbm" "val2ai" """
+Run: python docs/experiments/robustness_probe.py "sgm,sgm:binomial,sgm-refine,opencv-sgbm" "val2ai"
+(METHOD:PREFILTER runs the method with that census pre-filter, stereonet.cost.prefilter)"""
 import statistics
 import sys
 
@@ -36,7 +37,17 @@ PERTURBATIONS = {
                                                 (right + 0.03 * torch.randn(right.shape, generator=g)).clamp(0, 1)),
 }
 
-methods = [matchers.register_checkpoint_variant(a) for a in sys.argv[1].split(",")]
+def variant(entry: str) -> str:
+    """``METHOD`` (or ``LABEL=METHOD@CHECKPOINT``), or ``METHOD:PREFILTER``: the census pre-filter option set."""
+    if ":" not in entry:
+        return matchers.register_checkpoint_variant(entry)
+    method, prefilter = entry.split(":")
+    fn = matchers.get_matcher(method, prefilter=prefilter)
+    matchers.register(entry, kind="learned", description=f"{method}, prefilter {prefilter}")(lambda a, b, d: fn(a, b, d))
+    return entry
+
+
+methods = [variant(a) for a in sys.argv[1].split(",")]
 specs = expand(sys.argv[2])
 rows = {}
 for _spec, item in items(specs):
