@@ -4,8 +4,9 @@ rectification error; sub-pixel by bilinear resampling), a lower exposure of the 
 response curve (gamma), and sensor noise on both views. The ground truth stays the left view's (a vertical offset makes
 every match 0.5-1 px off the scanline, which is what a matcher must tolerate, not a change of the disparity).
 Prints the mean bad-2 (eval.py's metrics after the shared fill) of each method under each perturbation.
-Run: python docs/experiments/robustness_probe.py "sgm,sgm:binomial,sgm-refine,opencv-sgbm" "val2ai"
-(METHOD:PREFILTER runs the method with that census pre-filter, stereonet.cost.prefilter)"""
+Run: python docs/experiments/robustness_probe.py "sgm,sgm:binomial,sgm-refine,opencv-sgbm" "val2ai" [align]
+(METHOD:PREFILTER runs the method with that census pre-filter, stereonet.cost.prefilter; "align": the vertical offsets
+with and without stereonet.geometry.align.auto_align before matching)"""
 import statistics
 import sys
 
@@ -27,6 +28,24 @@ def shifted(img: torch.Tensor, dy: float) -> torch.Tensor:
     return F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
+def tilted(img: torch.Tensor, dy_at_right_edge: float) -> torch.Tensor:
+    """``img`` moved down by ``dy_at_right_edge * x / (W - 1)`` px (a small relative rotation of the views)."""
+    _, _, h, w = img.shape
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=img.dtype), torch.arange(w, dtype=img.dtype), indexing="ij")
+    grid = torch.stack([(2 * xs + 1) / w - 1, (2 * (ys - dy_at_right_edge * xs / (w - 1)) + 1) / h - 1], -1)[None]
+    return F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+def aligned(perturb):
+    """The perturbation, then stereonet.geometry.align.auto_align on the result (what infer.py does)."""
+    from stereonet.geometry.align import auto_align
+
+    def run(left, right, g):
+        left, right = perturb(left, right, g)
+        return left, auto_align(left, right)[0]
+    return run
+
+
 PERTURBATIONS = {
     "clean": lambda left, right, g: (left, right),
     "right down 0.5 px": lambda left, right, g: (left, shifted(right, 0.5)),
@@ -36,6 +55,17 @@ PERTURBATIONS = {
     "noise 0.03 both": lambda left, right, g: ((left + 0.03 * torch.randn(left.shape, generator=g)).clamp(0, 1),
                                                 (right + 0.03 * torch.randn(right.shape, generator=g)).clamp(0, 1)),
 }
+if len(sys.argv) > 3 and sys.argv[3] == "align":  # the offsets with and without auto_align (thirty-third session)
+    PERTURBATIONS = {
+        "clean": PERTURBATIONS["clean"],
+        "clean, aligned": aligned(PERTURBATIONS["clean"]),
+        "right down 0.5 px": PERTURBATIONS["right down 0.5 px"],
+        "right down 0.5 px, aligned": aligned(PERTURBATIONS["right down 0.5 px"]),
+        "right down 1 px": PERTURBATIONS["right down 1 px"],
+        "right down 1 px, aligned": aligned(PERTURBATIONS["right down 1 px"]),
+        "right tilted 0-1 px": lambda left, right, g: (left, tilted(right, 1.0)),
+        "right tilted 0-1 px, aligned": aligned(lambda left, right, g: (left, tilted(right, 1.0))),
+    }
 
 def variant(entry: str) -> str:
     """``METHOD`` (or ``LABEL=METHOD@CHECKPOINT``), or ``METHOD:PREFILTER``: the census pre-filter option set."""

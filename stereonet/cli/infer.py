@@ -26,6 +26,10 @@ uncalibrated rectification), times 1.2 plus 4 px, rounded up to a multiple of 16
 image width.
 The default ``--method`` is the best available: a learned matcher whose weights are present, else ``sgm``,
 else ``opencv-sgbm``.
+
+A residual vertical offset of the (rectified) pair, fitted as a plane to its SIFT matches
+(:mod:`stereonet.geometry.align`), is removed from the right view when it is clearly 0.25 px or more somewhere
+(info.json ``vertical_offset``; ``--no-align`` keeps the pair as given).
 """
 
 from __future__ import annotations
@@ -260,6 +264,7 @@ class Settings:
     cloud_frame: str = "rectified"
     output_scale: float = 1.0  # the matcher's output grid / the processed images (SMD's continuous head)
     memory_budget: float = float(DEFAULT_BUDGET_MIB)  # MiB a matcher call may use; larger pairs run in strips
+    align: bool = True  # correct a residual vertical offset of the (rectified) right view (stereonet.geometry.align)
     # a fixed rig's rectification (geometry, maps, content masks), computed for the first pair of a batch
     rig_cache: dict = field(default_factory=dict)
 
@@ -348,6 +353,34 @@ def write_rectified_calibration(path: Path, rect, unit: str | None) -> None:
 MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
 
+def align_vertically(left, right, right_content, pl: np.ndarray, pr: np.ndarray, max_disp: int | None, info: dict,
+                     pair: Pair):
+    """The residual vertical offset of the (rectified) pair, fitted to its SIFT matches
+    (:func:`~stereonet.geometry.align.fit_vertical_misalignment`), written to ``info["vertical_offset"]``; when it
+    is clear (:func:`~stereonet.geometry.align.needs_alignment`) the right view, its content mask and the matches'
+    right rows are corrected (one line on stderr says so). Returns ``(right, right_content, pr)``."""
+    from stereonet.geometry.align import align_right, fit_vertical_misalignment, needs_alignment
+
+    h, w = left.shape[-2:]
+    model = fit_vertical_misalignment(pl, pr, w, h, max_disp) if len(pl) else None
+    if model is None:
+        info["vertical_offset"] = None
+        return right, right_content, pr
+    corrected = needs_alignment(model, w, h)
+    info["vertical_offset"] = {"px_at_corners": [round(model.dy(x, y), 3) for y in (0, h - 1) for x in (0, w - 1)],
+                               "plane_a_b_c": [model.a, model.b, model.c], "standard_error_px": model.error,
+                               "matches": model.matches, "corrected": corrected}
+    if not corrected:
+        return right, right_content, pr
+    right = align_right(right, model)
+    right_content = align_right(right_content[None, None].float(), model)[0, 0] > 0.5
+    pr = pr.copy()
+    pr[:, 1] -= model.dy(pl[:, 0], pl[:, 1])
+    print(f"{PROG}: {pair.left.name}: right view aligned: it was up to {model.largest(w, h):.2f} px off-row (a plane "
+          f"fitted to {model.matches} SIFT matches; --no-align keeps it as it is)", file=sys.stderr)
+    return right, right_content, pr
+
+
 def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp: int | None,
                  calib, calib_path: Path | None, uncalibrated: bool, device: torch.device,
                  fill: bool = False, settings: Settings | None = None) -> dict:
@@ -416,6 +449,8 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
                 info["warnings"].append(
                     f"the pair looks unrectified: SIFT matches are {row_error:.1f} px off-row (median); "
                     "pass --calib FILE or --uncalibrated to rectify it first")
+    if st.align:
+        right, right_content, pr = align_vertically(left, right, right_content, pl, pr, max_disp, info, pair)
     # a rig whose second camera sits on the left: matches lie at x + d, so the pair is matched mirrored
     # (both images flipped left-right: the first stays the reference, the outputs stay upright)
     from stereonet.geometry import is_reversed_rig
@@ -597,6 +632,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--unit", choices=sorted(MM_PER_UNIT), default=None,
                    help="unit of the calibration's baseline (default: mm for Middlebury calib.txt, m for KITTI, "
                         "else unknown and no depth_mm.png)")
+    p.add_argument("--no-align", action="store_true",
+                   help="keep the right view as it is (by default a residual vertical offset of the rectified pair, "
+                        "fitted to SIFT matches, is corrected when it reaches 0.25 px)")
     p.add_argument("--cloud-frame", choices=("rectified", "original"), default="rectified",
                    help="frame of cloud.ply when the pair is rectified first (default: rectified left camera)")
     return p
@@ -729,7 +767,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     failures: list[str] = []
     settings = Settings(fill=args.fill, scale=args.scale, min_disp=args.min_disp, alpha=args.alpha, unit=args.unit,
                         cloud_frame=args.cloud_frame, output_scale=args.output_scale,
-                        memory_budget=args.memory_budget)
+                        memory_budget=args.memory_budget, align=not args.no_align)
     try:
         from tqdm import tqdm
 

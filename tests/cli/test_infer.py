@@ -599,3 +599,37 @@ def test_memory_budget_bad_values_are_one_line(pair_files, tmp_path, capsys):
     assert code == 2 and "too small" in one_line_error(err) and not (tmp_path / "b").exists()
     code, err = run_main(capsys, *pair_files, "-o", tmp_path / "c", "--method", "sgm")
     assert code == 0 and json.loads((tmp_path / "c" / "info.json").read_text())["memory"]["strips"] == 1
+
+
+def test_a_residual_vertical_offset_is_corrected_unless_no_align(tmp_path, capsys):
+    """The right view 1.5 rows low (a rectification's residual error): infer.py fits the offset to its SIFT matches,
+    says so in one line, records it, and the map is better than with --no-align; an aligned pair is left alone."""
+    from stereonet.io import read_disparity
+
+    left, right = textured_pair(seed=3, h=120, w=200)
+    rows = np.arange(120, dtype=np.float32)
+    map_y = np.repeat(np.clip(rows - 1.5, 0, 119)[:, None], 200, 1)
+    map_x = np.repeat(np.arange(200, dtype=np.float32)[None], 120, 0)
+    low = cv2.remap(right, map_x, map_y.astype(np.float32), cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    lp, rp, ap = tmp_path / "l.png", tmp_path / "r.png", tmp_path / "a.png"
+    cv2.imwrite(str(lp), left)
+    cv2.imwrite(str(rp), low)
+    cv2.imwrite(str(ap), right)
+    errors = {}
+    for name, extra in (("aligned", []), ("kept", ["--no-align"])):
+        out = tmp_path / name
+        code, err = run_main(capsys, lp, rp, "-o", out, "--method", "sgm", "--max-disp", "16", *extra)
+        assert code == 0, err
+        info = json.loads((out / "info.json").read_text())
+        disp, valid = read_disparity(out / "disparity.pfm")
+        errors[name] = float(np.mean(valid[10:-10, 20:-10] & (np.abs(disp[10:-10, 20:-10] - SHIFT) <= 0.5)))
+        if extra:
+            assert "vertical_offset" not in info and "aligned" not in err
+        else:
+            assert "right view aligned" in err
+            offset = info["vertical_offset"]
+            assert offset["corrected"] and all(v == pytest.approx(1.5, abs=0.1) for v in offset["px_at_corners"])
+    assert errors["aligned"] > errors["kept"] + 0.3, errors  # more pixels within 0.5 px of the truth
+    code, err = run_main(capsys, lp, ap, "-o", tmp_path / "plain", "--method", "sgm", "--max-disp", "16")
+    info = json.loads((tmp_path / "plain" / "info.json").read_text())
+    assert code == 0 and "aligned" not in err and not info["vertical_offset"]["corrected"]
