@@ -140,6 +140,7 @@ class Evaluation:
 
     pairs: list[PairResult] = field(default_factory=list)
     rows: list[dict] = field(default_factory=list)
+    aligned: list[tuple[str, str]] = field(default_factory=list)  # (dataset, pair) whose right view was aligned
 
 
 def _batch(x: torch.Tensor) -> torch.Tensor:
@@ -190,7 +191,7 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                    shard: tuple[int, int] = (0, 1), plots: Path | None = None, progress: bool = True,
                    options: dict[str, dict] | None = None, load: Callable | None = None,
                    budget: float | None = None, pair_cap: float | None = None,
-                   memory_budget: float | None = None, repeats: int = 1) -> Evaluation:
+                   memory_budget: float | None = None, repeats: int = 1, align: bool = False) -> Evaluation:
     """Run every method on every pair of every dataset spec; return per-pair results and table rows.
 
     ``load`` (default :func:`stereonet.data.load_dataset`) maps a spec to a dataset of item dicts; it is
@@ -204,6 +205,9 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
     ``repeats``: each pair's calls are timed this many times, the methods interleaved round by round (a load burst
     then hits one sample of each method, not all samples of one), and the pair's ``seconds`` is the median; the
     metrics, output and peak memory come from the first round, and the caps count that median once per pair.
+    ``align``: each pair's right view first goes through :func:`stereonet.geometry.align.auto_align` (a residual
+    vertical offset removed, as infer.py does; the left view and its ground truth are unchanged), once for every
+    method; ``Evaluation.aligned`` lists the pairs it corrected.
     """
     if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
         raise StereoInputError(f"repeats: expected an integer >= 1, got {repeats!r}")
@@ -241,6 +245,12 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                 name = str(item.get("name", idx))
                 md = int(max_disp if max_disp is not None else item["max_disp"])
                 left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
+                if align:
+                    from stereonet.geometry.align import auto_align
+
+                    right, _, corrected = auto_align(left, right, md)
+                    if corrected:
+                        result.aligned.append((label, name))
                 outs: dict[str, StereoOutput | None] = {}
                 work = float(left.shape[-2] * left.shape[-1] * (md + 1))
                 pending: list[tuple[str, tuple | None]] = []  # (method, _run_one's result or None = skipped)

@@ -87,6 +87,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--memory-budget", type=float, default=None, metavar="MIB",
                    help="extra memory one matcher call may use; larger pairs run in overlapping strips of rows "
                         "(default: whole pairs)")
+    p.add_argument("--align", action="store_true",
+                   help="remove a residual vertical offset of each pair's right view first, as infer.py does "
+                        "(the left view and the ground truth are unchanged)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -113,13 +116,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.memory_budget is not None and not args.memory_budget > 0:
             raise StereoInputError(f"--memory-budget: expected a positive number of MiB, got {args.memory_budget}")
         ev = run_evaluation(methods, specs, args.max_disp, args.fill, shard, args.plots, not args.no_progress,
-                            budget=args.budget, memory_budget=args.memory_budget)
+                            budget=args.budget, memory_budget=args.memory_budget, align=args.align)
     except USER_ERRORS as e:
         return fail(PROG, e)
     except ImportError as e:
         return fail(PROG, f"{e} (this part of stereonet is not installed)")
     except KeyboardInterrupt:
         return fail(PROG, "interrupted", 130)
+    for dataset, pair in ev.aligned:
+        print(f"{PROG}: note: {dataset}/{pair}: right view aligned (residual vertical offset)", file=sys.stderr)
     print(format_table(ev.rows))
     if args.json is not None:
         write_json(args.json, ev.rows)
