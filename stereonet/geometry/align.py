@@ -68,15 +68,15 @@ def estimate_vertical_misalignment(left: torch.Tensor, right: torch.Tensor, max_
 def fit_vertical_misalignment(pts_left: np.ndarray, pts_right: np.ndarray, width: int, height: int,
                               max_disp: int | None = None, min_matches: int = 20) -> VerticalMisalignment | None:
     """The plane ``dy = a + b x + c y`` fitted to matches ``(N, 2)`` (x, y) of a ``width`` x ``height`` pair, or None
-    when fewer than ``min_matches`` matches with a plausible disparity (``-1 <= x_l - x_r <= max_disp + 1``,
-    ``max_disp`` None = half the width) and ``|dy| <= 4`` px remain around the bulk of the offsets (a textureless
-    pair, or not a rectified one)."""
+    when fewer than ``min_matches`` matches with a plausible disparity (``|x_l - x_r| <= max_disp + 1`` of either
+    sign: converging and reversed rigs too; ``max_disp`` None = half the width) and ``|dy| <= 4`` px remain around
+    the bulk of the offsets (a textureless pair, or not a rectified one)."""
     if isinstance(min_matches, bool) or not isinstance(min_matches, int) or min_matches < 3:
         raise StereoInputError(f"min_matches: expected an integer >= 3, got {min_matches!r}")
     limit = width / 2 if max_disp is None else float(max_disp)
     p1, p2 = np.asarray(pts_left, np.float64), np.asarray(pts_right, np.float64)
     disp, dy = p1[:, 0] - p2[:, 0], p2[:, 1] - p1[:, 1]
-    keep = (disp >= -1.0) & (disp <= limit + 1.0) & (np.abs(dy) <= MAX_VERTICAL)
+    keep = (np.abs(disp) <= limit + 1.0) & (np.abs(dy) <= MAX_VERTICAL)
     x, y, dy = p1[keep, 0], p1[keep, 1], dy[keep]
     if len(dy) < min_matches:
         return None

@@ -28,12 +28,15 @@ def _matches(a, b, c, n=200, seed=0, outliers=0):
 def test_the_plane_is_recovered_despite_outliers_and_implausible_matches_are_ignored():
     left, right = _matches(0.6, 0.002, -0.001, outliers=40)
     left = np.concatenate([left, [[100.0, 50.0], [150.0, 60.0]]])
-    right = np.concatenate([right, [[130.0, 50.0], [150.0, 70.0]]])  # negative disparity; 10 rows off
+    right = np.concatenate([right, [[30.0, 50.0], [150.0, 70.0]]])  # 70 px apart; 10 rows off
     model = fit_vertical_misalignment(left, right, 300, 200, max_disp=40)
     assert model.a == pytest.approx(0.6, abs=0.03) and model.b == pytest.approx(0.002, abs=2e-4)
     assert model.c == pytest.approx(-0.001, abs=3e-4) and model.matches <= 160 and model.error < 0.05
     assert needs_alignment(model, 300, 200)
     assert fit_vertical_misalignment(left[:10], right[:10], 300, 200) is None  # too few matches
+    mirrored = right.copy()
+    mirrored[:, 0] = 2 * left[:, 0] - right[:, 0]  # a reversed rig: the same offsets at negative disparities
+    assert fit_vertical_misalignment(left, mirrored, 300, 200, max_disp=40).a == pytest.approx(model.a)
 
 
 def test_an_aligned_pair_is_not_corrected_and_a_scattered_fit_is_not_trusted():
