@@ -102,15 +102,17 @@ def fit_vertical_misalignment(pts_left: np.ndarray, pts_right: np.ndarray, width
 
 
 def align_right(right: torch.Tensor, model: VerticalMisalignment) -> torch.Tensor:
-    """``right`` :math:`(B, C, H, W)` resampled along its columns (bilinear, border replicated) so that its point
-    ``(x, y + dy(x, y))`` lands on row ``y``: the pair's vertical offset removed, the horizontal one kept."""
+    """``right`` :math:`(B, C, H, W)` resampled along its columns (bicubic, which blurs less than bilinear; border
+    replicated; clamped to the input's range against the cubic's overshoot) so that its point ``(x, y + dy(x, y))``
+    lands on row ``y``: the pair's vertical offset removed, the horizontal one kept."""
     _, _, h, w = right.shape
     ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64),
                             indexing="ij")
     src_y = ys + model.dy(xs, ys)
     grid = torch.stack([(2 * xs + 1) / w - 1, (2 * src_y + 1) / h - 1], -1).to(right.dtype).to(right.device)
-    return F.grid_sample(right, grid.expand(right.shape[0], h, w, 2), mode="bicubic", padding_mode="border",
-                         align_corners=False)
+    out = F.grid_sample(right, grid.expand(right.shape[0], h, w, 2), mode="bicubic", padding_mode="border",
+                        align_corners=False)
+    return out.clamp(float(right.min()), float(right.max()))
 
 
 def needs_alignment(model: VerticalMisalignment | None, width: int, height: int,

@@ -271,9 +271,10 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, wmf_radius: int 
     """Semi-global matching (Hirschmüller 2008); see :func:`sgm_core` for the options. ``wmf_radius`` > 0 (off by
     default): the map is then filled by eval.py's rule (:func:`~stereonet.select.fill.fill_occlusions`) and
     filtered by the image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, that
-    radius, ``wmf_sigma_color``, votes every ``wmf_stride`` px capped at the radius), every pixel valid, ``extras["lr_consistent"]`` the validity before the fill:
-    ``sgm-refine``'s last step on the classical map (model card, thirty-second session: radius 9, 0.2 took the
-    real pairs' median bad-2 from 7.4 to 6.15)."""
+    radius, ``wmf_sigma_color``, votes every ``wmf_stride`` px capped at the radius), every pixel valid,
+    ``extras["lr_consistent"]`` the validity before the fill: ``sgm-refine``'s last step on the classical map
+    (model card, thirty-second and thirty-third sessions: radius 9, 0.2, stride 2 took the real pairs' median
+    bad-2 from 7.4 to 6.2)."""
     check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     out = sgm_core(left, right, max_disp, **options)
     if not wmf_radius:
