@@ -24,8 +24,9 @@ batch, a pair that fails is reported (one line) and left out; the others are kep
 percentile of the horizontal offsets of SIFT matches on the (rectified) pair (or the inlier matches of the
 uncalibrated rectification), times 1.2 plus 4 px, rounded up to a multiple of 16 and capped at 256 and the
 image width.
-The default ``--method`` is the best available: a learned matcher whose weights are present, else ``sgm``,
-else ``opencv-sgbm``.
+The default ``--method`` is ``sgm`` (the first registered name of ``PREFERRED`` whose weights, if it needs any, are
+installed): the most accurate classical method at about OpenCV SGBM's speed; ``--method sgm-refine`` is more accurate
+on the real pairs of BENCHMARKS.md at several times the time.
 
 A residual vertical offset of the (rectified) pair, fitted as a plane to its SIFT matches
 (:mod:`stereonet.geometry.align`), is removed from the right view when it is clearly 0.25 px or more somewhere
@@ -599,7 +600,7 @@ def build_parser() -> OneLineParser:
     p.add_argument("left", help="left image, folder of left images, a quoted glob, or a video file")
     p.add_argument("right", help="right image, folder of right images, a quoted glob, or a video file")
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder (must not exist without --overwrite)")
-    p.add_argument("--method", default=None, help="registered matcher (default: the best available)")
+    p.add_argument("--method", default=None, help="registered matcher (default: sgm)")
     p.add_argument("--max-disp", type=int, default=None, help="disparity range (default: automatic)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--calib", type=Path, default=None,
