@@ -94,6 +94,9 @@ def speckle_filter(disp: torch.Tensor, valid: torch.Tensor, max_size: int = 100,
 WMF_RADIUS = 9
 WMF_SIGMA_COLOR = 0.2
 WMF_STRIDE = 2
+WMF_MAX_HISTOGRAM_SPAN = 65536.0
+"""px: maps whose valid values span more are filtered by the torch reference (the numba kernel's histogram has
+one bin per pixel of the span)."""
 
 
 def check_wmf_options(radius, sigma_color, stride=1, radius_name: str = "wmf_radius",
@@ -168,7 +171,11 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
     valid = torch.isfinite(disp) if valid is None else valid & torch.isfinite(disp)  # NaN and inf never vote
-    if use_numba(disp, guide, backend=backend, float32_only=False):
+    votes = disp[valid]
+    span = float(votes.max() - votes.min()) if votes.numel() else 0.0
+    # the kernel's histogram has one bin per pixel of the map's range: a map with absurd values (a range of millions
+    # of pixels) goes to the banded reference instead, whose memory does not depend on the values
+    if span <= WMF_MAX_HISTOGRAM_SPAN and use_numba(disp, guide, backend=backend, float32_only=False):
         d = disp.detach().to("cpu", torch.float32).numpy()
         g = guide.detach().to("cpu", torch.float32).numpy()
         v = valid.detach().cpu().numpy().astype(np.bool_)
