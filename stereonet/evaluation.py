@@ -140,7 +140,8 @@ class Evaluation:
 
     pairs: list[PairResult] = field(default_factory=list)
     rows: list[dict] = field(default_factory=list)
-    aligned: list[tuple[str, str]] = field(default_factory=list)  # (dataset, pair) whose right view was aligned
+    # (dataset, pair, largest offset in px) of each pair whose right view was aligned (run_evaluation's align)
+    aligned: list[tuple[str, str, float]] = field(default_factory=list)
 
 
 def _batch(x: torch.Tensor) -> torch.Tensor:
@@ -248,9 +249,9 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                 if align:
                     from stereonet.geometry.align import auto_align
 
-                    right, _, corrected = auto_align(left, right, md)
+                    right, model, corrected = auto_align(left, right, md)
                     if corrected:
-                        result.aligned.append((label, name))
+                        result.aligned.append((label, name, model.largest(right.shape[-1], right.shape[-2])))
                 outs: dict[str, StereoOutput | None] = {}
                 work = float(left.shape[-2] * left.shape[-1] * (md + 1))
                 pending: list[tuple[str, tuple | None]] = []  # (method, _run_one's result or None = skipped)

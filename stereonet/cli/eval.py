@@ -123,8 +123,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(PROG, f"{e} (this part of stereonet is not installed)")
     except KeyboardInterrupt:
         return fail(PROG, "interrupted", 130)
-    for dataset, pair in ev.aligned:
-        print(f"{PROG}: note: {dataset}/{pair}: right view aligned (residual vertical offset)", file=sys.stderr)
+    for dataset, pair, offset in ev.aligned:
+        print(f"{PROG}: note: {dataset}/{pair}: right view aligned (residual vertical offset up to {offset:.2f} px)",
+              file=sys.stderr)
     print(format_table(ev.rows))
     if args.json is not None:
         write_json(args.json, ev.rows)

@@ -284,7 +284,8 @@ def test_align_removes_a_residual_vertical_offset_before_every_method(capsys):
 
     plain = ev.run_evaluation(["sgm", "opencv-sgbm"], ["fake"], progress=False, load=load, fill=True)
     aligned = ev.run_evaluation(["sgm", "opencv-sgbm"], ["fake"], progress=False, load=load, fill=True, align=True)
-    assert aligned.aligned == [("fake", "pair0")] and plain.aligned == []
+    assert [a[:2] for a in aligned.aligned] == [("fake", "pair0")] and plain.aligned == []
+    assert aligned.aligned[0][2] == pytest.approx(1.0, abs=0.1)
     for a, b in zip(plain.pairs, aligned.pairs):
         if a.pair == "pair0":  # sgm's census suffers much from the offset; opencv-sgbm's cost less
             margin = 5.0 if a.method == "sgm" else 0.0
