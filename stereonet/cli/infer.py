@@ -59,6 +59,7 @@ VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 # Preference order for the default method: the order of real-pair bad-2 in BENCHMARKS.md. Our `sgm` is the
 # most accurate there and among the fastest; the learned ones follow (used when their weights exist).
 PREFERRED = ("sgm", "siamese-sgm", "dispnet", "smd", "siamese", "opencv-sgbm")
+PREFILTER_METHODS = ("sgm", "siamese-census-sgm", "sgm-refine", "sgm-penalties")  # census matchers with `prefilter`
 MAX_DISP_CAP = 256
 MIN_MATCHES = 8
 MARGIN = 1.2  # automatic max_disp = largest match disparity * MARGIN + 4 px, rounded up to 16
@@ -633,6 +634,9 @@ def build_parser() -> OneLineParser:
     p.add_argument("--unit", choices=sorted(MM_PER_UNIT), default=None,
                    help="unit of the calibration's baseline (default: mm for Middlebury calib.txt, m for KITTI, "
                         "else unknown and no depth_mm.png)")
+    p.add_argument("--prefilter", choices=("vertical", "binomial"), default=None,
+                   help="smooth the images the census cost reads (sgm, siamese-census-sgm, sgm-refine): for noisy "
+                        "photos (low light, small sensors); a little worse on clean ones, so off by default")
     p.add_argument("--no-align", action="store_true",
                    help="keep the right view as it is (by default a residual vertical offset of the rectified pair, "
                         "fitted to SIFT matches, is corrected when it reaches 0.25 px)")
@@ -713,6 +717,11 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
             raise StereoInputError(f"--output-scale: method {method!r} answers on the input grid only; use a method "
                                    "with a continuous output head (smd)")
         options["upsample"] = float(args.output_scale)
+    if args.prefilter is not None:
+        if method not in PREFILTER_METHODS:
+            raise StereoInputError(f"--prefilter: method {method!r} has no census pre-filter; use one of "
+                                   f"{', '.join(PREFILTER_METHODS)}")
+        options["prefilter"] = args.prefilter
     calib = None
     if args.calib is not None:
         from stereonet.calibration import read_calibration

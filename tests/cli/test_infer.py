@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from stereonet.cli import infer
 
@@ -633,3 +634,27 @@ def test_a_residual_vertical_offset_is_corrected_unless_no_align(tmp_path, capsy
     code, err = run_main(capsys, lp, ap, "-o", tmp_path / "plain", "--method", "sgm", "--max-disp", "16")
     info = json.loads((tmp_path / "plain" / "info.json").read_text())
     assert code == 0 and "aligned" not in err and not info["vertical_offset"]["corrected"]
+
+
+def test_prefilter_reaches_census_matchers_and_is_refused_elsewhere(pair_files, tmp_path, capsys):
+    from stereonet.io import read_disparity
+
+    maps = {}
+    for name, extra in (("plain", []), ("smoothed", ["--prefilter", "binomial"])):
+        code, err = run_main(capsys, *pair_files, "-o", tmp_path / name, "--method", "sgm", "--max-disp", "16", *extra)
+        assert code == 0, err
+        maps[name] = read_disparity(tmp_path / name / "disparity.pfm")[0]
+    assert not np.array_equal(np.nan_to_num(maps["plain"], posinf=0), np.nan_to_num(maps["smoothed"], posinf=0))
+    code, err = run_main(capsys, *pair_files, "-o", tmp_path / "bm", "--method", "opencv-bm", "--prefilter", "vertical")
+    assert code == 2 and "--prefilter" in one_line_error(err) and not (tmp_path / "bm").exists()
+
+
+def test_every_prefilter_method_takes_the_option():
+    from stereonet import matchers
+
+    left = torch.rand(1, 1, 24, 48, generator=torch.Generator().manual_seed(0))
+    for method in infer.PREFILTER_METHODS:
+        if method == "sgm-penalties":
+            continue  # no shipped weights; it passes its options to sgm's
+        out = matchers.match(method, left, left, 8, prefilter="vertical")
+        assert out.disparity.shape == (1, 1, 24, 48)
