@@ -4,7 +4,7 @@ rectification error; sub-pixel by bilinear resampling), a lower exposure of the 
 response curve (gamma), and sensor noise on both views. The ground truth stays the left view's (a vertical offset makes
 every match 0.5-1 px off the scanline, which is what a matcher must tolerate, not a change of the disparity).
 Prints the mean bad-2 (eval.py's metrics after the shared fill) of each method under each perturbation.
-Run: python docs/experiments/robustness_probe.py "sgm,sgm:binomial,sgm-refine,opencv-sgbm" "val2ai" [align]
+Run: python docs/experiments/robustness_probe.py "sgm,sgm:binomial,sgm-refine,opencv-sgbm" "val2ai" [align|jpeg]
 (METHOD:PREFILTER runs the method with that census pre-filter, stereonet.cost.prefilter; "align": the vertical offsets
 with and without stereonet.geometry.align.auto_align before matching)"""
 import statistics
@@ -26,6 +26,18 @@ def shifted(img: torch.Tensor, dy: float) -> torch.Tensor:
     ys, xs = torch.meshgrid(torch.arange(h, dtype=img.dtype), torch.arange(w, dtype=img.dtype), indexing="ij")
     grid = torch.stack([(2 * xs + 1) / w - 1, (2 * (ys - dy) + 1) / h - 1], -1)[None]
     return F.grid_sample(img, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+def jpeg(img: torch.Tensor, quality: int) -> torch.Tensor:
+    """``img`` (1, C, H, W) through JPEG at ``quality`` (OpenCV), as a phone or a web upload stores it."""
+    import cv2
+    import numpy as np
+
+    a = (img[0].permute(1, 2, 0).numpy() * 255).round().clip(0, 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", a[..., ::-1] if a.shape[2] == 3 else a, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    b = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    b = b[..., ::-1] if b.ndim == 3 else b[..., None]
+    return torch.from_numpy(np.ascontiguousarray(b)).permute(2, 0, 1)[None].to(img.dtype) / 255.0
 
 
 def tilted(img: torch.Tensor, dy_at_right_edge: float) -> torch.Tensor:
@@ -55,6 +67,11 @@ PERTURBATIONS = {
     "noise 0.03 both": lambda left, right, g: ((left + 0.03 * torch.randn(left.shape, generator=g)).clamp(0, 1),
                                                 (right + 0.03 * torch.randn(right.shape, generator=g)).clamp(0, 1)),
 }
+if len(sys.argv) > 3 and sys.argv[3] == "jpeg":  # compression as phones and web uploads store photos
+    PERTURBATIONS = {"clean": PERTURBATIONS["clean"],
+                     "jpeg 90 both": lambda left, right, g: (jpeg(left, 90), jpeg(right, 90)),
+                     "jpeg 75 both": lambda left, right, g: (jpeg(left, 75), jpeg(right, 75)),
+                     "jpeg 50 both": lambda left, right, g: (jpeg(left, 50), jpeg(right, 50))}
 if len(sys.argv) > 3 and sys.argv[3] == "align":  # the offsets with and without auto_align (thirty-third session)
     PERTURBATIONS = {
         "clean": PERTURBATIONS["clean"],
