@@ -72,6 +72,28 @@ def load_network(expected: str, checkpoint: str | os.PathLike | None = None) -> 
 
 
 @functools.lru_cache(maxsize=8)
+def check_trained_on(path: str, mtime: float) -> str | None:
+    """The warning for the weights file at ``path`` when it records (``trained_on``) the digest
+    (:func:`~stereonet.models.weights.weights_digest`) of other shipped weights whose outputs it was trained on and
+    the installed ones differ (e.g. ``refine.pt`` after ``siamese.pt`` was retrained); None when they match or it
+    records nothing. Warned once per file (cached)."""
+    import warnings
+
+    from stereonet.models.weights import weights_digest
+
+    info = load_weights(path)[1]
+    for network, digest in (info.get("trained_on") or {}).items():
+        installed = default_weights_path(network)
+        if installed.is_file() and weights_digest(installed) != digest:
+            message = (f"{Path(path).name} was trained on the outputs of another {network} weights file than the "
+                       f"installed {installed} (weights digest {digest[:12]}...); its results may be worse: retrain it on "
+                       f"the installed one")
+            warnings.warn(message, stacklevel=3)
+            return message
+    return None
+
+
+@functools.lru_cache(maxsize=8)
 def _torch_graph(network: str, net: torch.nn.Module) -> NetworkGraph:
     """One graph per loaded network, so its per-device copies (NetworkGraph._net_on) are made once."""
     return NetworkGraph(network, net)
@@ -396,6 +418,8 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     check_wmf_options(base_wmf_radius, wmf_sigma_color, radius_name="base_wmf_radius")
     net = load_network("refine", checkpoint)
+    path = Path(checkpoint) if checkpoint is not None else default_weights_path("refine")
+    check_trained_on(str(path), path.stat().st_mtime)
     cross = getattr(net, "evidence", "pixel") == "cross"
     wmf, wmf_bases = None, None
     if base_wmf_radius:  # the caller's choice

@@ -49,6 +49,31 @@ def default_weights_path(model: str) -> Path:
     return slim if slim.exists() else weights_dir() / f"{model}.ckpt"
 
 
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def weights_digest(path: str | os.PathLike) -> str:
+    """SHA-256 of a weights file's network tensors (names, dtypes, shapes and values, in name order): the same for
+    the same weights however the file was written (a slim file, a checkpoint, other metadata)."""
+    import hashlib
+
+    net, _ = load_weights(path)
+    digest = hashlib.sha256()
+    for name, tensor in sorted(net.state_dict().items()):
+        t = tensor.detach().cpu().contiguous()
+        digest.update(f"{name}:{t.dtype}:{tuple(t.shape)};".encode())
+        digest.update(t.numpy().tobytes())
+    return digest.hexdigest()
+
+
 def build_model(model: str, config: dict) -> nn.Module:
     """Instantiate the network called ``model`` ("dispnet", "smd", "siamese", "refine", "penalty") with keyword ``config``."""
     if model not in MODEL_CLASSES:
@@ -94,7 +119,7 @@ def load_weights(path: str | os.PathLike, expected: str | None = None) -> tuple[
         raise StereoInputError(f"checkpoint: {str(path)!r} does not fit a {info['model']!r} network with config "
                                f"{info['config']}: {e}") from e
     net.eval()
-    return net, {**info, **{k: v for k, v in data.items() if k in ("trained", "notes")}}
+    return net, {**info, **{k: v for k, v in data.items() if k in ("trained", "notes", "trained_on")}}
 
 
 def save_weights(path: str | os.PathLike, model: str, config: dict, net: nn.Module, **extra) -> None:

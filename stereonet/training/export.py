@@ -21,6 +21,8 @@ def export_weights(ckpt: str | Path, out: str | Path, notes: str | None = None) 
     """Write the slim weights of a Lightning checkpoint (or re-save a slim file); returns its info."""
     net, info = load_weights(ckpt)
     extra = {"notes": notes} if notes else {}
+    if info.get("trained_on"):  # the weights files whose outputs the network was trained on (sha256)
+        extra["trained_on"] = dict(info["trained_on"])
     save_weights(out, info["model"], dict(info["config"]), net, **extra)
     return info
 

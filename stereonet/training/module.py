@@ -79,8 +79,14 @@ class StereoModule(L.LightningModule):
     def model_config(self) -> dict:
         raise NotImplementedError
 
+    def trained_on(self) -> dict:
+        """Other shipped weights this network reads the outputs of: {network: its weights_digest}."""
+        return {}
+
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["stereonet_model"] = {"model": self.model_name, "config": self.model_config()}
+        if self.trained_on():
+            checkpoint["stereonet_model"]["trained_on"] = self.trained_on()
 
     @property
     def progress(self) -> float:
@@ -593,6 +599,16 @@ class RefineModule(StereoModule):
         if tuple(self.hparams.get("filtered_bases", ())):  # older files have no such key
             config.update(filtered_bases=list(self.hparams.filtered_bases))
         return config
+
+    def trained_on(self) -> dict:
+        """The shipped Siamese weights whose maps the Siamese bases gave this network (sgm-refine warns when the
+        installed file differs: stereonet.matchers.learned.check_trained_on)."""
+        from stereonet.models.weights import default_weights_path, weights_digest
+
+        path = default_weights_path("siamese")
+        if not any(b.startswith("siamese") for b in self.hparams.bases) or not path.is_file():
+            return {}
+        return {"siamese": weights_digest(path)}
 
     def compute(self, batch: dict):
         # matchers sit above models; only training reaches up

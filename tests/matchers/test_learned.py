@@ -166,3 +166,38 @@ def test_census_input_towers_run_through_every_siamese_path(tmp_path, inputs):
 
     report = export_onnx("siamese", tmp_path / "siamese.onnx", path, 40, 90, 12)
     assert report.graph_difference < 1e-4 and report.valid_agree
+
+
+def test_sgm_refine_warns_once_when_the_installed_siamese_weights_are_not_its_own(tmp_path, monkeypatch):
+    """refine.pt records the digest of the siamese.pt whose maps it was trained on (trained_on); with another
+    siamese.pt installed, sgm-refine warns (naming both files) and still runs; with the same one it is silent."""
+    import shutil
+    import warnings
+
+    from stereonet.matchers.learned import check_trained_on
+    from stereonet.models.weights import default_weights_path, load_weights, weights_digest
+
+    shipped_refine, shipped_siamese = default_weights_path("refine"), default_weights_path("siamese")
+    if not (shipped_refine.is_file() and shipped_siamese.is_file()):
+        pytest.skip("the shipped refine.pt / siamese.pt are not present")
+    assert load_weights(shipped_refine)[1]["trained_on"] == {"siamese": weights_digest(shipped_siamese)}
+    left = torch.rand(1, 3, 32, 64, generator=torch.Generator().manual_seed(0))
+    for name, change in (("same", False), ("other", True)):
+        folder = tmp_path / name
+        folder.mkdir()
+        shutil.copy(shipped_refine, folder / "refine.pt")
+        net, info = load_weights(shipped_siamese)
+        if change:
+            with torch.no_grad():
+                next(net.parameters()).add_(0.01)
+        save_weights(folder / "siamese.pt", "siamese", dict(info["config"]), net)
+        monkeypatch.setenv(WEIGHTS_DIR_ENV, str(folder))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            match("sgm-refine", left, left, 8)
+        messages = [str(w.message) for w in caught if "trained on the outputs" in str(w.message)]
+        if change:
+            assert len(messages) == 1 and "refine.pt" in messages[0] and "siamese" in messages[0]
+        else:
+            assert not messages
+    assert check_trained_on.cache_info().currsize >= 2  # once per file: the second call is cached

@@ -680,3 +680,23 @@ def test_refine_module_filtered_bases_trains_on_filtered_maps_and_exports_them(o
     first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 30, 1e-2)
     assert final < first, (first, final)
     assert module.model_config()["filtered_bases"] == ["sgm"]
+
+
+def test_refine_checkpoints_record_the_siamese_weights_and_export_keeps_them(tmp_path):
+    """RefineModule.trained_on: the digest of the installed siamese.pt when a base is Siamese-based, nothing for
+    sgm alone; export_weights copies it from a checkpoint's stereonet_model into the slim file."""
+    from stereonet.models.weights import default_weights_path, load_weights, weights_digest
+    from stereonet.training.export import export_weights
+    from stereonet.training.module import RefineModule
+
+    if not default_weights_path("siamese").is_file():
+        pytest.skip("the shipped siamese.pt is not present")
+    both = RefineModule(channels=4, dilations=(1,), mode="select", radii=(), bases=("siamese-census-sgm", "sgm"))
+    assert both.trained_on() == {"siamese": weights_digest(default_weights_path("siamese"))}
+    assert RefineModule(channels=4, dilations=(1,)).trained_on() == {}
+    checkpoint: dict = {}
+    both.on_save_checkpoint(checkpoint)
+    checkpoint["state_dict"] = {f"model.{k}": v for k, v in both.model.state_dict().items()}
+    torch.save(checkpoint, tmp_path / "last.ckpt")
+    export_weights(tmp_path / "last.ckpt", tmp_path / "refine.pt")
+    assert load_weights(tmp_path / "refine.pt")[1]["trained_on"] == both.trained_on()
