@@ -26,6 +26,7 @@ nothing written.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from collections.abc import Sequence
@@ -66,6 +67,14 @@ def learned_network(method: str) -> str:
     return NETWORK_OF[method]
 
 
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def check_writable(path: str | os.PathLike, overwrite: bool = False) -> Path:
     """``path`` as a file that can be written (its folder exists or can be made); errors name ``out``."""
     path = Path(path)
@@ -102,7 +111,7 @@ def export_onnx(method: str, out: str | os.PathLike, checkpoint: str | os.PathLi
     from stereonet.io.atomic import atomic_path
     from stereonet.matchers.learned import methods_of
     from stereonet.models.graphs import export_graph, verification_pair
-    from stereonet.models.weights import default_weights_path, file_sha256, load_weights
+    from stereonet.models.weights import default_weights_path, load_weights
 
     network = learned_network(method)
     out = check_writable(out, overwrite)
@@ -111,7 +120,7 @@ def export_onnx(method: str, out: str | os.PathLike, checkpoint: str | os.PathLi
     weights = Path(checkpoint) if checkpoint is not None else default_weights_path(network)
     net, info = load_weights(weights, network)  # FileNotFoundError / StereoInputError naming the checkpoint
     exported = export_graph(network, net, dict(info["config"]), methods_of(network), height, width,
-                            method=method, weights=weights.name, weights_sha256=file_sha256(weights),
+                            method=method, weights=weights.name, weights_sha256=_sha256(weights),
                             torch_version=torch.__version__)
     disparity_difference = valid_agree = None
     with atomic_path(out) as tmp:

@@ -49,17 +49,6 @@ def default_weights_path(model: str) -> Path:
     return slim if slim.exists() else weights_dir() / f"{model}.ckpt"
 
 
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 of a file's bytes (hex)."""
-    import hashlib
-
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def weights_digest(path: str | os.PathLike) -> str:
     """SHA-256 of a weights file's network tensors (names, dtypes, shapes and values, in name order): the same for
     the same weights however the file was written (a slim file, a checkpoint, other metadata)."""

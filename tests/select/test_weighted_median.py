@@ -36,16 +36,22 @@ def test_no_discontinuity_means_no_change():
     assert not torch.equal(weighted_median_filter(disp, guide, radius=4, jump=0.25, sigma_color=1.0), disp)
 
 
+def _random_case(g, channels, h, w, with_valid):
+    """A random map with a 6 px step at mid-width, a guide with an intensity step there, and optional validity."""
+    disp = torch.rand(2, 1, h, w, generator=g) * 4
+    disp[..., w // 2:] += 6
+    guide = torch.rand(2, channels, h, w, generator=g)
+    guide[..., w // 2:] += 0.4
+    valid = (torch.rand(2, 1, h, w, generator=g) > 0.3) if with_valid else None
+    return disp, guide, valid
+
+
 @pytest.mark.parametrize("channels,with_valid,radius", [(1, False, 3), (3, True, 5), (3, False, 9)])
 def test_numba_equals_torch(channels, with_valid, radius):
     """Equal on shapes smaller and larger than the window, with and without invalid (non-voting) pixels."""
     g = torch.Generator().manual_seed(channels + radius)
     for h, w in ((7, 11), (33, 47)):
-        disp = torch.rand(2, 1, h, w, generator=g) * 4
-        disp[..., w // 2:] += 6
-        guide = torch.rand(2, channels, h, w, generator=g)
-        guide[..., w // 2:] += 0.4
-        valid = (torch.rand(2, 1, h, w, generator=g) > 0.3) if with_valid else None
+        disp, guide, valid = _random_case(g, channels, h, w, with_valid)
         a = weighted_median_filter(disp, guide, radius=radius, sigma_color=0.3, valid=valid, backend="numba")
         b = weighted_median_filter(disp, guide, radius=radius, sigma_color=0.3, valid=valid, backend="torch")
         assert torch.equal(a, b)
@@ -59,11 +65,7 @@ def test_strided_windows_and_bands_numba_equals_torch(channels, with_valid, radi
     shapes below and above the window, on every border; a band of 0 filters only the pixels beside a step."""
     g = torch.Generator().manual_seed(10 * stride + radius)
     for h, w in ((6, 9), (31, 45)):
-        disp = torch.rand(2, 1, h, w, generator=g) * 4
-        disp[..., w // 2:] += 6
-        guide = torch.rand(2, channels, h, w, generator=g)
-        guide[..., w // 2:] += 0.4
-        valid = (torch.rand(2, 1, h, w, generator=g) > 0.3) if with_valid else None
+        disp, guide, valid = _random_case(g, channels, h, w, with_valid)
         kw = dict(radius=radius, sigma_color=0.3, valid=valid, stride=stride, band=band)
         a = weighted_median_filter(disp, guide, backend="numba", **kw)
         assert torch.equal(a, weighted_median_filter(disp, guide, backend="torch", **kw))
