@@ -85,8 +85,9 @@ class StereoModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["stereonet_model"] = {"model": self.model_name, "config": self.model_config()}
-        if self.trained_on():
-            checkpoint["stereonet_model"]["trained_on"] = self.trained_on()
+        trained_on = self.trained_on()
+        if trained_on:
+            checkpoint["stereonet_model"]["trained_on"] = trained_on
 
     @property
     def progress(self) -> float:
