@@ -40,8 +40,8 @@ session's strided weighted median: selection), ``val2aj``/``val4aj`` on seeds 52
 (weak_background 1) on seeds 5262/5263 (the second candidate's confirmation), ``val2al``/``val4al`` on seeds 5264/5265
 and ``wb2k``/``wb4k`` (weak_background 1) on seeds 5266/5267 (the census pre-filter: selection), ``val2am``/``val4am``
 on seeds 5268/5269 and ``wb2l``/``wb4l`` (weak_background 1) on seeds 5270/5271 (its confirmation), ``hires2``
-(6 pairs at 512x1024, seed 5272, difficulty 2: a diagnostic of the matchers at twice the renders' usual size); any
-other spec as
+(6 pairs at 512x1024, seed 5272, difficulty 2: a diagnostic of the matchers at twice the renders' usual size),
+``val2an``/``val4an`` on seeds 5273/5274 (the thirty-fourth session's wider DispNet reach); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -105,7 +105,8 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "wb2k": (12, 5266, 2, {"weak_background": 1.0}), "wb4k": (8, 5267, 4, {"weak_background": 1.0}),
         "val2am": (12, 5268, 2), "val4am": (8, 5269, 4),
         "wb2l": (12, 5270, 2, {"weak_background": 1.0}), "wb4l": (8, 5271, 4, {"weak_background": 1.0}),
-        "hires2": (6, 5272, 2, {"height": 512, "width": 1024})}
+        "hires2": (6, 5272, 2, {"height": 512, "width": 1024}),
+        "val2an": (12, 5273, 2), "val4an": (8, 5274, 4)}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

@@ -173,19 +173,24 @@ class StereoModule(L.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
-def _dispnet_config(max_disp: int, channels: int, aggregation: str, upsample: str, matching: str) -> dict:
+def _dispnet_config(max_disp: int, channels: int, aggregation: str, upsample: str, matching: str,
+                    refine_radius: int = 2) -> dict:
     """A DispNet network config (also SMD's backbone part), with ``matching`` only when it is not the default
-    "learned" (so the weight files of learned-feature networks stay as they were; files without the key are
-    "learned")."""
+    "learned" and ``refine_radius`` only when it is not the default 2 (so the weight files written before either
+    option stay as they were; files without a key have its default)."""
     config = {"max_disp": max_disp, "channels": channels, "aggregation": aggregation, "upsample": upsample}
-    return config if matching == "learned" else {**config, "matching": matching}
+    if matching != "learned":
+        config["matching"] = matching
+    if refine_radius != 2:
+        config["refine_radius"] = refine_radius
+    return config
 
 
 class DispNetModule(StereoModule):
     """Trains :class:`~stereonet.models.dispnet.DispNet` with the coarse-to-fine multi-scale L1 loss.
 
     Args:
-        max_disp, channels, aggregation, upsample, matching: the network's (see DispNet).
+        max_disp, channels, aggregation, upsample, matching, refine_radius: the network's (see DispNet).
         scale_weight_width: std (in scale steps) of the moving loss-weight bump.
         match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
             makes the shared features learn to match instead of the decoder learning a prior.
@@ -198,16 +203,17 @@ class DispNetModule(StereoModule):
     def __init__(self, max_disp: int = 96, channels: int = 16, scale_weight_width: float = 1.0,
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4,
                  schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear",
-                 channels_last: bool = False, matching: str = "learned") -> None:
+                 channels_last: bool = False, matching: str = "learned", refine_radius: int = 2) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample,
-                             matching=matching)
+                             matching=matching, refine_radius=refine_radius)
         self.use_channels_last(channels_last)
 
     def model_config(self) -> dict:
         hp = self.hparams
-        return _dispnet_config(hp.max_disp, hp.channels, hp.aggregation, hp.upsample, hp.matching)
+        return _dispnet_config(hp.max_disp, hp.channels, hp.aggregation, hp.upsample, hp.matching,
+                               hp.get("refine_radius", 2))
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)
