@@ -6,6 +6,7 @@
 import sys
 
 import val_sets
+
 from stereonet.matchers.learned import dispnet_matcher
 
 if __name__ == "__main__":

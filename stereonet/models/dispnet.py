@@ -88,6 +88,8 @@ class DispNet(nn.Module):
             the disparities as channels) or "3d" (a group-wise correlation volume, ``groups`` groups,
             aggregated by three 3x3x3 convolutions as in GwcNet; much better matching for little time).
         groups: channel groups of the "3d" correlation (of the 2c learned channels, or of the census comparisons).
+        agg_dilations: the spatial dilations of the "3d" aggregation's three 3x3x3 convolutions (default (1, 1, 1):
+            a reach of 7 cells of 1/4 = 28 input px; (1, 2, 4) reaches 15 cells for the same parameters).
         upsample: how each coarser disparity reaches the 1/2 and 1/1 stages: "bilinear" or "select" (a
             matched soft choice among the 3x3 coarse neighbours and the bilinear value; sharp edges).
         matching: what every correlation compares: "learned" (the shared encoder's unit-length features) or
@@ -101,7 +103,7 @@ class DispNet(nn.Module):
 
     def __init__(self, max_disp: int = 96, channels: int = 16, refine_radius: int = 2,
                  aggregation: str = "2d", groups: int = 4, upsample: str = "bilinear",
-                 matching: str = "learned") -> None:
+                 matching: str = "learned", agg_dilations: tuple[int, int, int] | list[int] = (1, 1, 1)) -> None:
         super().__init__()
         if max_disp < 4:
             raise StereoInputError(f"max_disp: expected >= 4, got {max_disp}")
@@ -118,9 +120,16 @@ class DispNet(nn.Module):
                                    f"got {groups}")
         if refine_radius < 0:
             raise StereoInputError(f"refine_radius: expected >= 0, got {refine_radius}")
+        agg_dilations = tuple(agg_dilations)
+        if len(agg_dilations) != 3 or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 1
+                                              for s in agg_dilations):
+            raise StereoInputError(f"agg_dilations: expected three integers >= 1, got {agg_dilations!r}")
+        if aggregation == "2d" and agg_dilations != (1, 1, 1):
+            raise StereoInputError(f"agg_dilations: only aggregation='3d' has them, got {agg_dilations!r} with '2d'")
         self.max_disp = int(max_disp)
         self.channels = int(channels)
         self.refine_radius = int(refine_radius)
+        self.agg_dilations = agg_dilations
         self.aggregation, self.groups = aggregation, int(groups)
         self.upsample = upsample
         self.matching = matching
@@ -141,7 +150,8 @@ class DispNet(nn.Module):
             self.corr_agg = nn.Sequential(conv_block(d4, d4), nn.Conv2d(d4, d4, 3, padding=1))
         else:  # group-wise correlation volume aggregated by 3-D convolutions over (disparity, y, x)
             g = self.groups
-            self.corr_agg = nn.Sequential(conv3d_block(g, 8), conv3d_block(8, 8), PlaneConv3d(8, 1))
+            s0, s1, s2 = agg_dilations
+            self.corr_agg = nn.Sequential(conv3d_block(g, 8, s0), conv3d_block(8, 8, s1), PlaneConv3d(8, 1, s2))
         self.enc3 = nn.Sequential(conv_block(d4 + c, 4 * c, 3, stride=2), conv_block(4 * c, 4 * c))
         self.enc4 = nn.Sequential(conv_block(4 * c, 6 * c, 3, stride=2), conv_block(6 * c, 6 * c))
         # decoder

@@ -26,15 +26,22 @@ class PlaneConv3d(nn.Conv3d):
     """A 3x3x3 ``nn.Conv3d`` (stride 1, "same" padding; the same parameters and state dict) computed as three 2-D
     convolutions over the volume's depth planes, summed with a shift of one plane: torch's CPU build runs 3-D
     convolutions through a slow im2col path (``slow_conv3d``, ~1.5 GB of scratch on a KITTI-sized volume) and
-    2-D ones through oneDNN. Same maths; the float sums run in another order."""
+    2-D ones through oneDNN. Same maths; the float sums run in another order. ``dilation`` spaces the kernel's
+    taps over (y, x) only (``nn.Conv3d``'s ``dilation=(1, s, s)`` with padding ``(1, s, s)``): a wider spatial
+    reach for the same parameters and work; neighbouring depth planes stay one apart."""
 
-    def __init__(self, in_channels: int, out_channels: int) -> None:
-        super().__init__(in_channels, out_channels, 3, padding=1)
+    def __init__(self, in_channels: int, out_channels: int, dilation: int = 1) -> None:
+        if isinstance(dilation, bool) or not isinstance(dilation, int) or dilation < 1:
+            raise StereoInputError(f"dilation: expected an integer >= 1, got {dilation!r}")
+        super().__init__(in_channels, out_channels, 3, padding=(1, dilation, dilation), dilation=(1, dilation, dilation))
+        self.spatial_dilation = dilation
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         b, c, d, h, w = x.shape
         planes = x.transpose(1, 2).reshape(b * d, c, h, w)
-        per_k = [F.conv2d(planes, self.weight[:, :, k], None, padding=1).view(b, d, -1, h, w) for k in range(3)]
+        s = self.spatial_dilation
+        per_k = [F.conv2d(planes, self.weight[:, :, k], None, padding=s, dilation=s).view(b, d, -1, h, w)
+                 for k in range(3)]
         below = F.pad(per_k[0][:, :-1], (0, 0, 0, 0, 0, 0, 1, 0))  # plane z - 1 through the kernel's first slice
         above = F.pad(per_k[2][:, 1:], (0, 0, 0, 0, 0, 0, 0, 1))  # plane z + 1 through its last slice
         out = (below + per_k[1]) + above
@@ -43,10 +50,10 @@ class PlaneConv3d(nn.Conv3d):
         return out.transpose(1, 2)
 
 
-def conv3d_block(in_channels: int, out_channels: int) -> nn.Sequential:
-    """3x3x3 convolution (:class:`PlaneConv3d`, "same" padding) + LeakyReLU(0.1), for cost volumes
-    :math:`(B, C, D, H, W)`."""
-    return nn.Sequential(PlaneConv3d(in_channels, out_channels), nn.LeakyReLU(0.1, inplace=True))
+def conv3d_block(in_channels: int, out_channels: int, dilation: int = 1) -> nn.Sequential:
+    """3x3x3 convolution (:class:`PlaneConv3d`, "same" padding, spatial ``dilation``) + LeakyReLU(0.1), for cost
+    volumes :math:`(B, C, D, H, W)`."""
+    return nn.Sequential(PlaneConv3d(in_channels, out_channels, dilation), nn.LeakyReLU(0.1, inplace=True))
 
 
 def upconv_block(in_channels: int, out_channels: int) -> nn.Sequential:

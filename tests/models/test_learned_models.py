@@ -507,24 +507,29 @@ def test_smd_detach_anchor_same_values_no_gradient_into_the_backbone_disparity()
     assert torch.equal(out.disparity, net(left, right).disparity)
 
 
-def test_plane_conv3d_is_conv3d():
+@pytest.mark.parametrize("dilation", [1, 2, 3])
+def test_plane_conv3d_is_conv3d(dilation):
     """PlaneConv3d (three 2-D convolutions over depth planes) computes F.conv3d's 3x3x3 "same" convolution and its
-    gradients, with nn.Conv3d's parameters (a state dict of either loads into the other)."""
+    gradients, with nn.Conv3d's parameters (a state dict of either loads into the other); with a spatial dilation
+    (taps ``dilation`` px apart in y and x, depth planes one apart) on a volume narrower than the dilated kernel."""
     from stereonet.models.layers import PlaneConv3d
 
     g = torch.Generator().manual_seed(4)
-    conv = PlaneConv3d(3, 5)
+    conv = PlaneConv3d(3, 5, dilation)
     x = torch.randn(2, 3, 7, 6, 9, generator=g, requires_grad=True)
     out = conv(x)
-    ref = torch.nn.functional.conv3d(x, conv.weight, conv.bias, padding=1)
+    ref = torch.nn.functional.conv3d(x, conv.weight, conv.bias, padding=(1, dilation, dilation),
+                                     dilation=(1, dilation, dilation))
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
     upstream = torch.randn(out.shape, generator=g)
     for a, b in zip(torch.autograd.grad(out, (x, conv.weight, conv.bias), upstream),
                     torch.autograd.grad(ref, (x, conv.weight, conv.bias), upstream)):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4)
-    plain = torch.nn.Conv3d(3, 5, 3, padding=1)
+    plain = torch.nn.Conv3d(3, 5, 3, padding=(1, dilation, dilation), dilation=(1, dilation, dilation))
     plain.load_state_dict(conv.state_dict())
     torch.testing.assert_close(plain(x), out, rtol=1e-5, atol=1e-5)
+    with pytest.raises(StereoInputError, match="dilation"):
+        PlaneConv3d(3, 5, 0)
 
 
 def test_edge_samples_sit_near_depth_edges_with_the_other_side_as_negative():

@@ -167,25 +167,31 @@ def test_overfit_one_batch_dispnet(one_thread):
     assert final < 0.1 * first and final < 0.5, (first, final)  # multi-scale L1 below half a pixel
 
 
-def test_dispnet_refine_radius_reaches_the_weights_config(one_thread):
-    """A wider local search (``refine_radius``) is part of the network's shape: the module's config carries it
-    (and leaves it out at the default 2, so older files read as before), and a network built from that config
-    takes the trained tensors and gives the same disparity."""
+def test_dispnet_refine_radius_and_dilations_reach_the_weights_config(one_thread):
+    """A wider local search (``refine_radius``) is part of the network's shape and the 3-D aggregation's spatial
+    dilations (``agg_dilations``) of its maths: the module's config carries both (and leaves each out at its
+    default, so older files read as before), and a network built from that config takes the trained tensors and
+    gives the same disparity (one with the default dilations does not)."""
     from stereonet.models.weights import build_model
 
     torch.manual_seed(0)
-    module = DispNetModule(max_disp=16, channels=4, matching="census", refine_radius=3).eval()
+    module = DispNetModule(max_disp=16, channels=4, matching="census", aggregation="3d", refine_radius=3,
+                           agg_dilations=[1, 2, 4]).eval()
     config = module.model_config()
-    assert config["refine_radius"] == 3
-    assert "refine_radius" not in DispNetModule(max_disp=16, channels=4, matching="census").model_config()
+    assert config["refine_radius"] == 3 and config["agg_dilations"] == [1, 2, 4]
+    default = DispNetModule(max_disp=16, channels=4, matching="census", aggregation="3d").model_config()
+    assert "refine_radius" not in default and "agg_dilations" not in default
     net = build_model("dispnet", config).eval()
     net.load_state_dict(module.model.state_dict())
     with pytest.raises(RuntimeError):  # the default radius has narrower decoder inputs
         build_model("dispnet", {k: v for k, v in config.items() if k != "refine_radius"}).load_state_dict(
             module.model.state_dict())
     left, right = torch.rand(1, 3, 32, 64), torch.rand(1, 3, 32, 64)
+    undilated = build_model("dispnet", {k: v for k, v in config.items() if k != "agg_dilations"}).eval()
+    undilated.load_state_dict(module.model.state_dict())  # the same tensors, other maths
     with torch.no_grad():
         assert torch.equal(net(left, right).disparity, module.model(left, right).disparity)
+        assert not torch.allclose(undilated(left, right).disparity, net(left, right).disparity)
 
 
 def test_overfit_one_batch_siamese(one_thread):
