@@ -59,6 +59,17 @@ def test_forward_rejects_unpadded_input(small_dispnet):
         small_dispnet(torch.rand(1, 3, 30, 64), torch.rand(1, 3, 30, 64))
 
 
+@pytest.mark.parametrize("options, message", [
+    ({"aggregation": "3d", "agg_dilations": (1, 2)}, "agg_dilations: expected three integers >= 1"),
+    ({"aggregation": "3d", "agg_dilations": (1, 0, 2)}, "agg_dilations: expected three integers >= 1"),
+    ({"aggregation": "2d", "agg_dilations": (1, 2, 4)}, "agg_dilations: only aggregation='3d'"),
+    ({"refine_radius": -1}, "refine_radius: expected >= 0"),
+])
+def test_dispnet_rejects_bad_options_naming_them(options, message):
+    with pytest.raises(StereoInputError, match=message):
+        DispNet(max_disp=16, channels=4, **options)
+
+
 def test_dispnet_stateless_same_structure_train_and_eval(small_dispnet):
     left, right = torch.rand(2, 3, 32, 64), torch.rand(2, 3, 32, 64)
     outs = []
