@@ -418,8 +418,7 @@ def sgm_refine_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, c
     check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     check_wmf_options(base_wmf_radius, wmf_sigma_color, radius_name="base_wmf_radius")
     net = load_network("refine", checkpoint)
-    path = Path(checkpoint) if checkpoint is not None else default_weights_path("refine")
-    check_trained_on(str(path), path.stat().st_mtime)
+    check_trained_on(*_file_key(checkpoint if checkpoint is not None else default_weights_path("refine")))
     cross = getattr(net, "evidence", "pixel") == "cross"
     wmf, wmf_bases = None, None
     if base_wmf_radius:  # the caller's choice
