@@ -42,7 +42,9 @@ and ``wb2k``/``wb4k`` (weak_background 1) on seeds 5266/5267 (the census pre-fil
 on seeds 5268/5269 and ``wb2l``/``wb4l`` (weak_background 1) on seeds 5270/5271 (its confirmation), ``hires2``
 (6 pairs at 512x1024, seed 5272, difficulty 2: a diagnostic of the matchers at twice the renders' usual size),
 ``val2an``/``val4an`` on seeds 5273/5274 (the thirty-fourth session's wider DispNet reach), ``val2ap``/``val4ap`` on
-seeds 5277/5278 (its dilated 3-D aggregation; 5275/5276 were set aside for a run that did not happen); any other
+seeds 5277/5278 (its dilated 3-D aggregation; 5275/5276 were set aside for a run that did not happen),
+``val2ar``/``val4ar`` on seeds 5281/5282 (the thirty-fifth session's matched fine read-out; 5279/5280 were set aside
+for a run that did not happen) and ``val2as``/``val4as`` on seeds 5283/5284 (its conditional long run); any other
 spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -109,7 +111,8 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "wb2l": (12, 5270, 2, {"weak_background": 1.0}), "wb4l": (8, 5271, 4, {"weak_background": 1.0}),
         "hires2": (6, 5272, 2, {"height": 512, "width": 1024}),
         "val2an": (12, 5273, 2), "val4an": (8, 5274, 4),
-        "val2ap": (12, 5277, 2), "val4ap": (8, 5278, 4)}
+        "val2ap": (12, 5277, 2), "val4ap": (8, 5278, 4),
+        "val2ar": (12, 5281, 2), "val4ar": (8, 5282, 4), "val2as": (12, 5283, 2), "val4as": (8, 5284, 4)}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

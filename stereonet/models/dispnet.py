@@ -16,6 +16,9 @@ correlation of the left features with the right ones warped by each candidate pl
 (a PatchMatch/HITNet-style propagation written as a soft selection). A pixel beside a depth edge can then
 take the foreground's or the background's disparity instead of a blend of both, which is what makes edges
 sharp; the local-correlation residual follows as before.
+With ``refine_readout="matched"`` the 1/2 and 1/1 corrections are not regressed freely from the decoder features:
+each is the soft-argmax of that stage's local correlation plus learned logits (a matched read-out, as the 1/4 start
+is one), so a fine correction is always a match within ``±refine_radius`` pixels of that scale.
 Every disparity in the output is in pixels of the *input* resolution, left-referenced.
 
 The network needs its input padded to a multiple of :attr:`DispNet.stride`; :func:`predict_disparity`
@@ -96,6 +99,10 @@ class DispNet(nn.Module):
             "census" (:func:`~stereonet.cost.census.census_signs` of the grey image, ``census_window`` square,
             at each scale of the area-downsampled grey image: fixed features that no training data can bias;
             the encoder then runs on the left image only, as context).
+        refine_readout: how the 1/2 and 1/1 stages correct the disparity they receive: "residual" (a free
+            regression from the decoder features, DispNet's) or "matched" (the soft-argmax over the local
+            correlation's ``2 refine_radius + 1`` shifts of the correlation plus learned logits, the logits' layer
+            zero at the start: a correction that is always a match within reach; needs ``refine_radius >= 1``).
     """
 
     stride = 16
@@ -103,7 +110,8 @@ class DispNet(nn.Module):
 
     def __init__(self, max_disp: int = 96, channels: int = 16, refine_radius: int = 2,
                  aggregation: str = "2d", groups: int = 4, upsample: str = "bilinear",
-                 matching: str = "learned", agg_dilations: tuple[int, int, int] | list[int] = (1, 1, 1)) -> None:
+                 matching: str = "learned", agg_dilations: tuple[int, int, int] | list[int] = (1, 1, 1),
+                 refine_readout: str = "residual") -> None:
         super().__init__()
         if max_disp < 4:
             raise StereoInputError(f"max_disp: expected >= 4, got {max_disp}")
@@ -120,6 +128,10 @@ class DispNet(nn.Module):
                                    f"got {groups}")
         if refine_radius < 0:
             raise StereoInputError(f"refine_radius: expected >= 0, got {refine_radius}")
+        if refine_readout not in ("residual", "matched"):
+            raise StereoInputError(f"refine_readout: expected 'residual' or 'matched', got {refine_readout!r}")
+        if refine_readout == "matched" and refine_radius < 1:
+            raise StereoInputError(f"refine_radius: refine_readout='matched' needs >= 1, got {refine_radius}")
         agg_dilations = tuple(agg_dilations)
         if len(agg_dilations) != 3 or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 1
                                               for s in agg_dilations):
@@ -133,6 +145,7 @@ class DispNet(nn.Module):
         self.aggregation, self.groups = aggregation, int(groups)
         self.upsample = upsample
         self.matching = matching
+        self.refine_readout = refine_readout
         c = self.channels
         r = 2 * self.refine_radius + 1  # channels of each local correlation
         self.corr_disp = self.max_disp // 4
@@ -164,11 +177,16 @@ class DispNet(nn.Module):
         self.pred2 = nn.Conv2d(2 * c, 1, 3, padding=1)
         self.up1 = upconv_block(2 * c, c)
         self.dec1 = nn.Sequential(conv_block(c + c + r + 1, c), conv_block(c, c))
-        self.pred1 = nn.Conv2d(c, 1, 3, padding=1)
+        k_out = r if refine_readout == "matched" else 1  # the 1/2 and 1/1 heads: logits or a residual
+        self.pred1 = nn.Conv2d(c, k_out, 3, padding=1)
         self.up0 = upconv_block(c, c // 2)
         self.dec0 = nn.Sequential(conv_block(c // 2 + 3 + r + 1, c // 2), conv_block(c // 2, c // 2))
-        self.pred0 = nn.Conv2d(c // 2, 1, 3, padding=1)
+        self.pred0 = nn.Conv2d(c // 2, k_out, 3, padding=1)
         self.refine_unit = 2.0  # the 1/2 and 1/1 residuals: raw outputs ~1 = 2 input pixels
+        if refine_readout == "matched":  # logits added to each local correlation: zero at the start
+            for head in (self.pred1, self.pred0):
+                nn.init.zeros_(head.weight)
+                nn.init.zeros_(head.bias)
         if upsample == "select":  # context logits of the candidate choice at 1/2 and 1/1
             k = self.num_candidates
             self.select1 = nn.Sequential(conv_block(c + c + 2 * k, c), nn.Conv2d(c, k, 3, padding=1))
@@ -222,6 +240,14 @@ class DispNet(nn.Module):
         :math:`(B, 1, h, w)` in input pixels; returns :math:`(B, 2r+1, h, w)` logits (scaled correlation)."""
         return local_correlation(unit_left, unit_right, disp / scale, self.refine_radius) * self.local_scale
 
+    def _correction(self, head: nn.Module, x: torch.Tensor, local: torch.Tensor, scale: int) -> torch.Tensor:
+        """The 1/2 or 1/1 stage's correction :math:`(B, 1, h, w)` in input pixels (``scale`` input pixels per
+        pixel of the stage): ``head``'s free residual, or the soft-argmax over the local correlation's shifts of
+        ``local`` + ``head``'s logits (``refine_readout="matched"``)."""
+        if self.refine_readout == "residual":
+            return head(x) * self.refine_unit
+        return (soft_argmax(local + head(x)) - self.refine_radius) * scale
+
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> DispNetOutput:
         """left, right: :math:`(B, C, H, W)` in [0, 1], H and W multiples of :attr:`stride`."""
         h, w = left.shape[-2:]
@@ -264,7 +290,7 @@ class DispNet(nn.Module):
             d1_init = _up2(d2)
         local1 = self._local_cost(n1[:b], n1[b:], d1_init, 2)  # Bx(2r+1)xH/2xW/2
         x1 = self.dec1(torch.cat([u1, e1_l, local1, d1_init / self.disp_unit], dim=1))
-        d1 = d1_init + self.pred1(x1) * self.refine_unit
+        d1 = d1_init + self._correction(self.pred1, x1, local1, 2)
         u0 = self.up0(x1)
         if self.upsample == "select":
             d0_init = self._select_up(d1, n0[:b], n0[b:], torch.cat([u0, e0[:b]], dim=1), 1, self.select0)
@@ -272,7 +298,7 @@ class DispNet(nn.Module):
             d0_init = _up2(d1)
         local0 = self._local_cost(n0[:b], n0[b:], d0_init, 1)  # Bx(2r+1)xHxW
         x0 = self.dec0(torch.cat([u0, x_left, local0, d0_init / self.disp_unit], dim=1))
-        d0 = d0_init + self.pred0(x0) * self.refine_unit
+        d0 = d0_init + self._correction(self.pred0, x0, local0, 1)
         return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2},
                              matched=d_match)
 

@@ -174,10 +174,10 @@ class StereoModule(L.LightningModule):
 
 
 def _dispnet_config(max_disp: int, channels: int, aggregation: str, upsample: str, matching: str,
-                    refine_radius: int = 2, agg_dilations=(1, 1, 1)) -> dict:
-    """A DispNet network config (also SMD's backbone part), with ``matching``, ``refine_radius`` and
-    ``agg_dilations`` only when they differ from their defaults ("learned", 2, (1, 1, 1); so the weight files written
-    before an option stay as they were; files without a key have its default)."""
+                    refine_radius: int = 2, agg_dilations=(1, 1, 1), refine_readout: str = "residual") -> dict:
+    """A DispNet network config (also SMD's backbone part), with ``matching``, ``refine_radius``, ``agg_dilations``
+    and ``refine_readout`` only when they differ from their defaults ("learned", 2, (1, 1, 1), "residual"; so the
+    weight files written before an option stay as they were; files without a key have its default)."""
     config = {"max_disp": max_disp, "channels": channels, "aggregation": aggregation, "upsample": upsample}
     if matching != "learned":
         config["matching"] = matching
@@ -185,6 +185,8 @@ def _dispnet_config(max_disp: int, channels: int, aggregation: str, upsample: st
         config["refine_radius"] = refine_radius
     if tuple(agg_dilations) != (1, 1, 1):
         config["agg_dilations"] = list(agg_dilations)
+    if refine_readout != "residual":
+        config["refine_readout"] = refine_readout
     return config
 
 
@@ -192,8 +194,8 @@ class DispNetModule(StereoModule):
     """Trains :class:`~stereonet.models.dispnet.DispNet` with the coarse-to-fine multi-scale L1 loss.
 
     Args:
-        max_disp, channels, aggregation, upsample, matching, refine_radius, agg_dilations: the network's (see
-            DispNet).
+        max_disp, channels, aggregation, upsample, matching, refine_radius, agg_dilations, refine_readout: the
+            network's (see DispNet).
         scale_weight_width: std (in scale steps) of the moving loss-weight bump.
         match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
             makes the shared features learn to match instead of the decoder learning a prior.
@@ -207,17 +209,20 @@ class DispNetModule(StereoModule):
                  match_weight: float = 0.5, lr: float = 1e-3, weight_decay: float = 1e-4,
                  schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear",
                  channels_last: bool = False, matching: str = "learned", refine_radius: int = 2,
-                 agg_dilations: list[int] | tuple[int, int, int] = (1, 1, 1)) -> None:
+                 agg_dilations: list[int] | tuple[int, int, int] = (1, 1, 1),
+                 refine_readout: str = "residual") -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample,
-                             matching=matching, refine_radius=refine_radius, agg_dilations=tuple(agg_dilations))
+                             matching=matching, refine_radius=refine_radius, agg_dilations=tuple(agg_dilations),
+                             refine_readout=refine_readout)
         self.use_channels_last(channels_last)
 
     def model_config(self) -> dict:
         hp = self.hparams
         return _dispnet_config(hp.max_disp, hp.channels, hp.aggregation, hp.upsample, hp.matching,
-                               hp.get("refine_radius", 2), hp.get("agg_dilations", (1, 1, 1)))
+                               hp.get("refine_radius", 2), hp.get("agg_dilations", (1, 1, 1)),
+                               hp.get("refine_readout", "residual"))
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)

@@ -11,6 +11,7 @@ from stereonet.models.dispnet import DispNet, DispNetOutput, predict_disparity
 from stereonet.models.layers import (
     InputPadder,
     local_correlation,
+    standardize_image,
     unit_channels,
 )
 from stereonet.models.siamese import (
@@ -64,10 +65,48 @@ def test_forward_rejects_unpadded_input(small_dispnet):
     ({"aggregation": "3d", "agg_dilations": (1, 0, 2)}, "agg_dilations: expected three integers >= 1"),
     ({"aggregation": "2d", "agg_dilations": (1, 2, 4)}, "agg_dilations: only aggregation='3d'"),
     ({"refine_radius": -1}, "refine_radius: expected >= 0"),
+    ({"refine_readout": "free"}, "refine_readout: expected 'residual' or 'matched'"),
+    ({"refine_readout": "matched", "refine_radius": 0}, "refine_radius: refine_readout='matched' needs >= 1"),
 ])
 def test_dispnet_rejects_bad_options_naming_them(options, message):
     with pytest.raises(StereoInputError, match=message):
         DispNet(max_disp=16, channels=4, **options)
+
+
+@pytest.mark.parametrize("matching", ["learned", "census"])
+def test_dispnet_matched_readout_corrects_within_reach_and_starts_as_the_local_soft_argmax(matching):
+    """``refine_readout="matched"``: the 1/2 and 1/1 corrections are soft-argmaxes over the local correlation's
+    shifts, so whatever the logit heads hold, each stage moves its (bilinearly upsampled) input by at most
+    ``refine_radius`` of its own pixels (2 r input px at 1/2, r at 1/1); the free residual with the same large
+    head weights moves it further. At the start (heads zero) the 1/1 correction is exactly the soft-argmax of the
+    scaled local correlation; gradients reach the logit heads."""
+    from stereonet.aggregate.soft import soft_argmax
+    from stereonet.models.dispnet import _up2
+
+    torch.manual_seed(0)
+    left, right = torch.rand(1, 3, 32, 64), torch.rand(1, 3, 32, 64)
+    r = 2
+    matched = DispNet(max_disp=16, channels=4, matching=matching, refine_readout="matched", refine_radius=r)
+    out = matched(left, right)
+    d1, d0 = out.pyramid[3], out.pyramid[4]
+    n0 = (matched._census_features(left, right)[0] if matching == "census"
+          else unit_channels(matched.enc0(torch.cat([standardize_image(left), standardize_image(right)]))))
+    start = (soft_argmax(local_correlation(n0[:1], n0[1:], _up2(d1), r) * matched.local_scale) - r)
+    torch.testing.assert_close(d0 - _up2(d1), start, rtol=1e-5, atol=1e-5)
+    out.disparity.abs().mean().backward()
+    assert matched.pred0.weight.grad.abs().sum() > 0 and matched.pred1.weight.grad.abs().sum() > 0
+    residual = DispNet(max_disp=16, channels=4, matching=matching, refine_radius=r)
+    with torch.no_grad():
+        for net in (matched, residual):
+            for head in (net.pred1, net.pred0):
+                head.weight.normal_(0.0, 50.0)
+            out = net(left, right)
+            d2, d1, d0 = out.pyramid[2:]
+            step1, step0 = (d1 - _up2(d2)).abs().max(), (d0 - _up2(d1)).abs().max()
+            if net is matched:
+                assert step1 <= 2 * r + 1e-4 and step0 <= r + 1e-4, (step1, step0)
+            else:
+                assert step1 > 2 * r or step0 > r, (step1, step0)
 
 
 def test_dispnet_stateless_same_structure_train_and_eval(small_dispnet):

@@ -159,33 +159,37 @@ def _fit(loss_fn, params, steps: int, lr: float) -> tuple[float, float]:
     return first, float(loss_fn().detach())
 
 
-def test_overfit_one_batch_dispnet(one_thread):
+@pytest.mark.parametrize("refine_readout", ["residual", "matched"])
+def test_overfit_one_batch_dispnet(one_thread, refine_readout):
     torch.manual_seed(0)
     batch = _one_batch()
-    module = DispNetModule(max_disp=16, channels=8)
+    module = DispNetModule(max_disp=16, channels=8, refine_readout=refine_readout)
     first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 60, 3e-3)
     assert final < 0.1 * first and final < 0.5, (first, final)  # multi-scale L1 below half a pixel
 
 
 def test_dispnet_refine_radius_and_dilations_reach_the_weights_config(one_thread):
-    """A wider local search (``refine_radius``) is part of the network's shape and the 3-D aggregation's spatial
-    dilations (``agg_dilations``) of its maths: the module's config carries both (and leaves each out at its
-    default, so older files read as before), and a network built from that config takes the trained tensors and
-    gives the same disparity (one with the default dilations does not)."""
+    """A wider local search (``refine_radius``) and the matched read-out (``refine_readout``) are part of the
+    network's shape and the 3-D aggregation's spatial dilations (``agg_dilations``) of its maths: the module's
+    config carries all three (and leaves each out at its default, so older files read as before), and a network
+    built from that config takes the trained tensors and gives the same disparity (one with the default dilations
+    does not)."""
     from stereonet.models.weights import build_model
 
     torch.manual_seed(0)
     module = DispNetModule(max_disp=16, channels=4, matching="census", aggregation="3d", refine_radius=3,
-                           agg_dilations=[1, 2, 4]).eval()
+                           agg_dilations=[1, 2, 4], refine_readout="matched").eval()
     config = module.model_config()
     assert config["refine_radius"] == 3 and config["agg_dilations"] == [1, 2, 4]
+    assert config["refine_readout"] == "matched"
     default = DispNetModule(max_disp=16, channels=4, matching="census", aggregation="3d").model_config()
-    assert "refine_radius" not in default and "agg_dilations" not in default
+    assert not {"refine_radius", "agg_dilations", "refine_readout"} & set(default)
     net = build_model("dispnet", config).eval()
     net.load_state_dict(module.model.state_dict())
-    with pytest.raises(RuntimeError):  # the default radius has narrower decoder inputs
-        build_model("dispnet", {k: v for k, v in config.items() if k != "refine_radius"}).load_state_dict(
-            module.model.state_dict())
+    for key in ("refine_radius", "refine_readout"):  # narrower decoder inputs; one-channel residual heads
+        with pytest.raises(RuntimeError):
+            build_model("dispnet", {k: v for k, v in config.items() if k != key}).load_state_dict(
+                module.model.state_dict())
     left, right = torch.rand(1, 3, 32, 64), torch.rand(1, 3, 32, 64)
     undilated = build_model("dispnet", {k: v for k, v in config.items() if k != "agg_dilations"}).eval()
     undilated.load_state_dict(module.model.state_dict())  # the same tensors, other maths
