@@ -314,3 +314,32 @@ def test_census_matching_features_are_the_same_bits_in_onnxruntime(threads):
     got = ort.InferenceSession(buffer.getvalue()).run(None, {"left": left.numpy(), "right": right.numpy()})
     for expected, value in zip(Features()(left, right), got):
         assert torch.equal(expected, torch.from_numpy(value))
+
+
+def test_dispnet_matched_readout_exports_to_onnx(threads):
+    """DispNet(refine_readout="matched") (the fine stages' soft-argmax over the local correlation) traces into an
+    ONNX graph that reproduces torch on a pair of another size than the traced one (dynamic axes), within the
+    export's verification tolerance; the logit heads hold non-zero weights, so the read-out is exercised."""
+    from stereonet.models.dispnet import DispNet
+    from stereonet.models.graphs import (
+        ONNX_FORMAT,
+        VERIFY_TOLERANCE,
+        NetworkGraph,
+        OnnxGraph,
+        graph_inputs,
+        max_output_difference,
+        trace_to_onnx,
+    )
+
+    torch.manual_seed(0)
+    net = DispNet(max_disp=32, channels=8, matching="census", aggregation="3d", upsample="select",
+                  refine_readout="matched").eval()
+    with torch.no_grad():
+        for head in (net.pred1, net.pred0):
+            head.weight.normal_(0.0, 0.5)
+    graph = NetworkGraph("dispnet", net)
+    left, right = (read_image(CONES / name) for name in ("im2.png", "im6.png"))
+    example = graph_inputs(graph, left[..., :96, :160], right[..., :96, :160])
+    metadata = {"stereonet.format": ONNX_FORMAT, "stereonet.network": "dispnet", "stereonet.stride": "16"}
+    exported = OnnxGraph(trace_to_onnx(graph, example, metadata))
+    assert max_output_difference(graph, exported, left[..., :128, :224], right[..., :128, :224]) < VERIFY_TOLERANCE
