@@ -44,8 +44,8 @@ on seeds 5268/5269 and ``wb2l``/``wb4l`` (weak_background 1) on seeds 5270/5271 
 ``val2an``/``val4an`` on seeds 5273/5274 (the thirty-fourth session's wider DispNet reach), ``val2ap``/``val4ap`` on
 seeds 5277/5278 (its dilated 3-D aggregation; 5275/5276 were set aside for a run that did not happen),
 ``val2ar``/``val4ar`` on seeds 5281/5282 (the thirty-fifth session's matched fine read-out; 5279/5280 were set aside
-for a run that did not happen) and ``val2as``/``val4as`` on seeds 5283/5284 (its conditional long run); any other
-spec as
+for a run that did not happen), ``val2as``/``val4as`` on seeds 5283/5284 (its conditional long run, which did not
+run: never rendered) and ``val2at``/``val4at`` on seeds 5285/5286 (dispnet's left-right check); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -112,7 +112,8 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "hires2": (6, 5272, 2, {"height": 512, "width": 1024}),
         "val2an": (12, 5273, 2), "val4an": (8, 5274, 4),
         "val2ap": (12, 5277, 2), "val4ap": (8, 5278, 4),
-        "val2ar": (12, 5281, 2), "val4ar": (8, 5282, 4), "val2as": (12, 5283, 2), "val4as": (8, 5284, 4)}
+        "val2ar": (12, 5281, 2), "val4ar": (8, 5282, 4), "val2as": (12, 5283, 2), "val4as": (8, 5284, 4),
+        "val2at": (12, 5285, 2), "val4at": (8, 5286, 4)}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

@@ -42,6 +42,7 @@ from stereonet.select.filters import (
     check_wmf_options,
     weighted_median_filter,
 )
+from stereonet.select.lr_check import left_right_check
 from stereonet.types import StereoOutput
 
 BACKENDS = ("torch", "onnx")
@@ -193,20 +194,38 @@ def _smd_predict(graph: NetworkGraph | OnnxGraph, left: torch.Tensor, right: tor
     return mixture_outputs(mix, grid.shape[2] / w, with_mixture=True)
 
 
+DISPNET_LR_TOL = 1.0
+"""``dispnet(lr_check=True)``'s left-right tolerance in pixels (the project's one rule, as ``sgm``'s default)."""
+
+
 @register("dispnet", kind="learned", needs_weights=True,
           description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt)")
 def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
-                    backend: str = "torch", onnx_model: str | None = None) -> StereoOutput:
-    """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]; every pixel valid."""
+                    backend: str = "torch", onnx_model: str | None = None, lr_check: bool = False) -> StereoOutput:
+    """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]; every pixel valid, unless ``lr_check``:
+    the network then also runs on the mirrored, swapped pair (its left-referenced answer there, mirrored back, is
+    the right view's map; both passes in one batch) and the pixels whose two answers disagree by more than
+    :data:`DISPNET_LR_TOL` px (:func:`~stereonet.select.lr_check.left_right_check`) are invalid (occlusions and
+    mismatches; ``eval.py --fill`` and ``infer.py --fill`` fill them by the shared rule). The disparity itself is the
+    same either way (up to the float rounding of a batch of two)."""
+    if not isinstance(lr_check, bool):
+        raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
     graph = network_graph("dispnet", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]
     small_left, small_right, _ = _downscale_to_range(left, right, max_disp, graph.max_disp)
+    if lr_check:  # the mirrored, swapped pair rides in the same batch
+        b = small_left.shape[0]
+        small_left, small_right = (torch.cat([small_left, small_right.flip(-1)]),
+                                   torch.cat([small_right, small_left.flip(-1)]))
     with torch.no_grad():
         disp = _dispnet_predict(graph, small_left, small_right)
     if disp.shape[-2:] != (h, w):
         disp = resize_disparity(disp, h, w)
     disp = disp.clamp(0, max_disp).to(left.dtype)
-    return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
+    if not lr_check:
+        return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
+    disp, disp_right = disp[:b], disp[b:].flip(-1)
+    return StereoOutput(disp, left_right_check(disp, disp_right, DISPNET_LR_TOL))
 
 
 SMD_ERROR_TAU = 2.0
@@ -289,7 +308,7 @@ def siamese_sgm_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, 
     from stereonet.aggregate.sgm import sgm_aggregate
     from stereonet.select.confidence import cost_margin_confidence
     from stereonet.select.fill import fill_occlusions
-    from stereonet.select.lr_check import left_right_check, wta_right
+    from stereonet.select.lr_check import wta_right
     from stereonet.select.subpixel import subpixel_refine
     from stereonet.select.wta import wta
 

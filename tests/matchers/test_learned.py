@@ -60,6 +60,49 @@ def test_beyond_trained_range_runs_downscaled(weights):
     assert out.disparity.shape == (1, 1, 80, 192)
 
 
+def test_dispnet_lr_check_marks_the_pixels_its_mirrored_run_disagrees_with(weights):
+    """``dispnet(lr_check=True)``: the same disparity (one batch of two instead of one), and ``valid`` is the
+    project's left-right rule against the network's answer on the mirrored, swapped pair, mirrored back (here on
+    an odd size beyond the trained range, so padding and the downscaled path are crossed); a bad value is a
+    one-line error naming the option."""
+    from stereonet.matchers.learned import DISPNET_LR_TOL
+    from stereonet.select.lr_check import left_right_check
+
+    torch.manual_seed(1)
+    left, right = torch.rand(1, 3, 37, 70), torch.rand(1, 3, 37, 70)
+    ckpt = str(weights["dispnet"])
+    plain = match("dispnet", left, right, 24, checkpoint=ckpt)
+    checked = match("dispnet", left, right, 24, checkpoint=ckpt, lr_check=True)
+    torch.testing.assert_close(checked.disparity, plain.disparity, rtol=1e-5, atol=1e-4)
+    mirrored = match("dispnet", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt).disparity.flip(-1)
+    expected = left_right_check(checked.disparity, mirrored, DISPNET_LR_TOL)
+    assert plain.valid.all() and checked.valid.dtype == torch.bool
+    assert (checked.valid != expected).float().mean() < 0.01  # float rounding may flip a pixel at the tolerance
+    assert 0 < checked.valid.float().mean() < 1
+    with pytest.raises(StereoInputError, match="lr_check: expected True or False"):
+        match("dispnet", left, right, 24, checkpoint=ckpt, lr_check="yes")
+
+
+@pytest.mark.skipif(not matchers.weights_available("dispnet"), reason="shipped dispnet weights not installed")
+def test_dispnet_lr_check_finds_the_occlusions_of_a_render():
+    """With the shipped dispnet.pt on a data_gen render, the left-right check rejects most of the ground truth's
+    occlusions (a share there at least twice the share elsewhere), and elsewhere the pixels it rejects are
+    mismatches: their bad-2 rate at least twice the accepted pixels'."""
+    import data_gen
+
+    item = data_gen.SyntheticStereo(1, seed=12, difficulty=2, height=96, width=192)[0]
+    out = match("dispnet", item["left"][None], item["right"][None], item["max_disp"], lr_check=True)
+    occluded = item["occlusion"][None] & item["valid"][None]
+    visible = ~item["occlusion"][None] & item["valid"][None]
+    assert occluded.any() and visible.any()
+    rejected_occluded = 1 - out.valid[occluded].float().mean()
+    rejected_visible = 1 - out.valid[visible].float().mean()
+    assert rejected_occluded > 0.5 and rejected_occluded > 2 * rejected_visible, (rejected_occluded, rejected_visible)
+    bad = (out.disparity - item["disparity"][None]).abs() > 2
+    bad_rejected, bad_accepted = bad[visible & ~out.valid].float().mean(), bad[visible & out.valid].float().mean()
+    assert bad_rejected > 2 * bad_accepted, (bad_rejected, bad_accepted)
+
+
 def test_wrong_checkpoint_and_missing_weights(weights, tmp_path, monkeypatch):
     left = right = torch.rand(1, 3, 32, 48)
     with pytest.raises(StereoInputError, match="expected a 'dispnet' model, got a 'siamese'"):
