@@ -14,13 +14,13 @@ from stereonet.types import StereoOutput  # noqa: E402
 
 def lr_at(left, right, max_disp, tol, checkpoint=None):
     """The check at another tolerance (the matcher's is fixed at 1 px)."""
-    a = dispnet_matcher(left, right, max_disp, checkpoint=checkpoint)
-    b = dispnet_matcher(right.flip(-1), left.flip(-1), max_disp, checkpoint=checkpoint)
+    a = dispnet_matcher(left, right, max_disp, checkpoint=checkpoint, lr_check=False)
+    b = dispnet_matcher(right.flip(-1), left.flip(-1), max_disp, checkpoint=checkpoint, lr_check=False)
     return StereoOutput(a.disparity, left_right_check(a.disparity, b.disparity.flip(-1), tol))
 
 
 ck = sys.argv[2] if len(sys.argv) > 2 else None
-variants = {"plain": (dispnet_matcher, {"checkpoint": ck}),
+variants = {"plain": (dispnet_matcher, {"checkpoint": ck, "lr_check": False}),
             "lr1": (dispnet_matcher, {"checkpoint": ck, "lr_check": True}),
             "lr2": (lr_at, {"tol": 2.0, "checkpoint": ck}),
             "lr3": (lr_at, {"tol": 3.0, "checkpoint": ck})}

@@ -199,32 +199,33 @@ DISPNET_LR_TOL = 1.0
 
 
 @register("dispnet", kind="learned", needs_weights=True,
-          description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt)")
+          description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt) + a left-right check")
 def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
-                    backend: str = "torch", onnx_model: str | None = None, lr_check: bool = False) -> StereoOutput:
-    """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]; every pixel valid, unless ``lr_check``:
-    the network then also runs on the mirrored, swapped pair (its left-referenced answer there, mirrored back, is
-    the right view's map; both passes in one batch) and the pixels whose two answers disagree by more than
-    :data:`DISPNET_LR_TOL` px (:func:`~stereonet.select.lr_check.left_right_check`) are invalid (occlusions and
-    mismatches; ``eval.py --fill`` and ``infer.py --fill`` fill them by the shared rule). The disparity itself is the
-    same either way (up to the float rounding of a batch of two)."""
+                    backend: str = "torch", onnx_model: str | None = None, lr_check: bool = True) -> StereoOutput:
+    """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]. With ``lr_check`` (the default since the
+    thirty-fifth session, by a data_gen rule: docs/experiments/dispnet_lr.txt) the network also runs on the
+    mirrored, swapped pair (its left-referenced answer there, mirrored back, is the right view's map) and the
+    pixels whose two answers disagree by more than :data:`DISPNET_LR_TOL` px
+    (:func:`~stereonet.select.lr_check.left_right_check`) are invalid (occlusions and mismatches; ``eval.py --fill``
+    and ``infer.py --fill`` fill them by the shared rule, as ``sgm``'s); without it every pixel is valid. The
+    disparity itself is the same either way."""
     if not isinstance(lr_check, bool):
         raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
     graph = network_graph("dispnet", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]
     small_left, small_right, _ = _downscale_to_range(left, right, max_disp, graph.max_disp)
-    if lr_check:  # the mirrored, swapped pair rides in the same batch
-        b = small_left.shape[0]
-        small_left, small_right = (torch.cat([small_left, small_right.flip(-1)]),
-                                   torch.cat([small_right, small_left.flip(-1)]))
-    with torch.no_grad():
-        disp = _dispnet_predict(graph, small_left, small_right)
-    if disp.shape[-2:] != (h, w):
-        disp = resize_disparity(disp, h, w)
-    disp = disp.clamp(0, max_disp).to(left.dtype)
+
+    def predict(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            disp = _dispnet_predict(graph, first, second)
+        if disp.shape[-2:] != (h, w):
+            disp = resize_disparity(disp, h, w)
+        return disp.clamp(0, max_disp).to(left.dtype)
+
+    disp = predict(small_left, small_right)
     if not lr_check:
         return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
-    disp, disp_right = disp[:b], disp[b:].flip(-1)
+    disp_right = predict(small_right.flip(-1), small_left.flip(-1)).flip(-1)
     return StereoOutput(disp, left_right_check(disp, disp_right, DISPNET_LR_TOL))
 
 
