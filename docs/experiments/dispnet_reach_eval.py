@@ -1,7 +1,10 @@
 """The decision table of docs/experiments/dispnet_reach.txt: DispNet weights files side by side on data_gen sets
 (eval.py's fill; its table has the per-set means of bad-2, EPE and SEE, then each pair's bad-2).
 
-    cd docs/experiments && python dispnet_reach_eval.py "val2an;val4an" control=weights/dispnet_census_3d.pt reach=PATH
+    cd docs/experiments && python dispnet_reach_eval.py [--lr-check] "val2an;val4an" control=weights/dispnet_census_3d.pt reach=PATH
+
+Without ``--lr-check`` every pixel is the network's (as the files were trained and the earlier rules written); with
+it each file runs as ``dispnet`` runs since the thirty-fifth session (its left-right check, then the shared fill).
 """
 import sys
 
@@ -10,10 +13,12 @@ import val_sets
 from stereonet.matchers.learned import dispnet_matcher
 
 if __name__ == "__main__":
-    specs = val_sets.expand(sys.argv[1])
+    lr_check = "--lr-check" in sys.argv[1:]
+    args = [a for a in sys.argv[1:] if a != "--lr-check"]
+    specs = val_sets.expand(args[0])
     variants = {}
-    for arg in sys.argv[2:]:
+    for arg in args[1:]:
         name, path = arg.split("=", 1)
         # as the networks were trained and the rules written: every pixel the network's (no left-right check)
-        variants[f"dispnet-{name}"] = (dispnet_matcher, {"checkpoint": path, "lr_check": False})
+        variants[f"dispnet-{name}"] = (dispnet_matcher, {"checkpoint": path, "lr_check": lr_check})
     val_sets.compare(variants, specs)

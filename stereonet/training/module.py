@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from stereonet.checks import StereoInputError
 from stereonet.models.dispnet import DispNet
 from stereonet.models.penalty import PenaltyNet
 from stereonet.models.refine import RefineNet, first_argmax
@@ -199,6 +200,9 @@ class DispNetModule(StereoModule):
         scale_weight_width: std (in scale steps) of the moving loss-weight bump.
         match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
             makes the shared features learn to match instead of the decoder learning a prior.
+        loss_pixels: which ground-truth pixels both losses count: "valid" (every one) or "nonoccluded" (only those
+            visible in both views, the batch's ``nonoccluded``: an occluded pixel has no match to learn). The logged
+            errors count every valid pixel either way.
         lr, weight_decay, schedule_steps: see :class:`StereoModule`.
         channels_last: train in the channels-last memory format (see :meth:`StereoModule.use_channels_last`).
     """
@@ -210,7 +214,9 @@ class DispNetModule(StereoModule):
                  schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear",
                  channels_last: bool = False, matching: str = "learned", refine_radius: int = 2,
                  agg_dilations: list[int] | tuple[int, int, int] = (1, 1, 1),
-                 refine_readout: str = "residual") -> None:
+                 refine_readout: str = "residual", loss_pixels: str = "valid") -> None:
+        if loss_pixels not in ("valid", "nonoccluded"):
+            raise StereoInputError(f"loss_pixels: expected 'valid' or 'nonoccluded', got {loss_pixels!r}")
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample,
@@ -230,8 +236,10 @@ class DispNetModule(StereoModule):
     def compute(self, batch: dict):
         out = self.model(*self._images(batch))
         weights = coarse_to_fine_weights(self.progress, len(out.pyramid), self.hparams.scale_weight_width)
-        loss, per_scale = multiscale_l1_loss(out.pyramid, batch["disparity"], batch["valid"], weights)
-        match_l1, _ = multiscale_l1_loss([out.matched], batch["disparity"], batch["valid"], [1.0])
+        counted = (batch["valid"] if self.hparams.get("loss_pixels", "valid") == "valid"
+                   else batch.get("nonoccluded", batch["valid"]))
+        loss, per_scale = multiscale_l1_loss(out.pyramid, batch["disparity"], counted, weights)
+        match_l1, _ = multiscale_l1_loss([out.matched], batch["disparity"], counted, [1.0])
         loss = loss + self.hparams.match_weight * match_l1
         extra = {"match_epe": disparity_errors(out.matched.detach(), batch["disparity"], batch["valid"])["epe"]}
         for scale, pred in zip(DispNet.scales, out.pyramid):

@@ -11,6 +11,7 @@ from unittest import mock
 import pytest
 import torch
 
+from stereonet.checks import StereoInputError
 from stereonet.models.siamese import SiameseNet, siamese_pair_loss
 from stereonet.training.callbacks import AtomicCheckpointIO
 from stereonet.training.curriculum import difficulty_at
@@ -166,6 +167,30 @@ def test_overfit_one_batch_dispnet(one_thread, refine_readout):
     module = DispNetModule(max_disp=16, channels=8, refine_readout=refine_readout)
     first, final = _fit(lambda: module.compute(batch)[0], module.parameters(), 60, 3e-3)
     assert final < 0.1 * first and final < 0.5, (first, final)  # multi-scale L1 below half a pixel
+
+
+def test_dispnet_loss_pixels_nonoccluded_ignores_the_occluded_pixels(one_thread):
+    """``loss_pixels="nonoccluded"``: the loss does not depend on the ground truth of occluded pixels (changing it
+    there leaves the loss equal) and does on visible ones; with "valid" it depends on both; a bad value is a
+    one-line error naming the option."""
+    torch.manual_seed(0)
+    batch = _one_batch()
+    batch["nonoccluded"] = batch["valid"].clone()
+    batch["nonoccluded"][..., 20:28] = False  # a band of columns stands for the occluded pixels
+    occluded = batch["valid"] & ~batch["nonoccluded"]
+    assert occluded.any() and batch["nonoccluded"].any()
+    moved_occluded = dict(batch, disparity=torch.where(occluded, batch["disparity"] + 5.0, batch["disparity"]))
+    moved_visible = dict(batch, disparity=torch.where(batch["nonoccluded"], batch["disparity"] + 5.0,
+                                                      batch["disparity"]))
+    for pixels in ("nonoccluded", "valid"):
+        torch.manual_seed(0)
+        module = DispNetModule(max_disp=16, channels=4, loss_pixels=pixels).eval()
+        with torch.no_grad():
+            base, occ, vis = (float(module.compute(b)[0]) for b in (batch, moved_occluded, moved_visible))
+        assert vis != base
+        assert (occ == base) == (pixels == "nonoccluded"), (pixels, base, occ)
+    with pytest.raises(StereoInputError, match="loss_pixels: expected 'valid' or 'nonoccluded'"):
+        DispNetModule(max_disp=16, channels=4, loss_pixels="visible")
 
 
 def test_dispnet_refine_radius_and_dilations_reach_the_weights_config(one_thread):
