@@ -194,10 +194,6 @@ def _smd_predict(graph: NetworkGraph | OnnxGraph, left: torch.Tensor, right: tor
     return mixture_outputs(mix, grid.shape[2] / w, with_mixture=True)
 
 
-DISPNET_LR_TOL = 1.0
-"""``dispnet(lr_check=True)``'s left-right tolerance in pixels (the project's one rule, as ``sgm``'s default)."""
-
-
 @register("dispnet", kind="learned", needs_weights=True,
           description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt) + a left-right check")
 def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
@@ -205,10 +201,10 @@ def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, chec
     """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]. With ``lr_check`` (the default since the
     thirty-fifth session, by a data_gen rule: docs/experiments/dispnet_lr.txt) the network also runs on the
     mirrored, swapped pair (its left-referenced answer there, mirrored back, is the right view's map) and the
-    pixels whose two answers disagree by more than :data:`DISPNET_LR_TOL` px
-    (:func:`~stereonet.select.lr_check.left_right_check`) are invalid (occlusions and mismatches; ``eval.py --fill``
-    and ``infer.py --fill`` fill them by the shared rule, as ``sgm``'s); without it every pixel is valid. The
-    disparity itself is the same either way."""
+    pixels whose two answers disagree by more than the project's one left-right rule allows
+    (:func:`~stereonet.select.lr_check.left_right_check` at its default 1 px, as ``sgm``'s) are invalid (occlusions
+    and mismatches; ``eval.py --fill`` and ``infer.py --fill`` fill them by the shared rule); without it every pixel
+    is valid. The disparity itself is the same either way."""
     if not isinstance(lr_check, bool):
         raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
     graph = network_graph("dispnet", checkpoint, backend, onnx_model)
@@ -226,7 +222,7 @@ def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, chec
     if not lr_check:
         return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
     disp_right = predict(small_right.flip(-1), small_left.flip(-1)).flip(-1)
-    return StereoOutput(disp, left_right_check(disp, disp_right, DISPNET_LR_TOL))
+    return StereoOutput(disp, left_right_check(disp, disp_right))
 
 
 SMD_ERROR_TAU = 2.0

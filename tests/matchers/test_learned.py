@@ -65,7 +65,6 @@ def test_dispnet_lr_check_marks_the_pixels_its_mirrored_run_disagrees_with(weigh
     project's left-right rule against the network's answer on the mirrored, swapped pair, mirrored back (here on
     an odd size beyond the trained range, so padding and the downscaled path are crossed); a bad value is a
     one-line error naming the option."""
-    from stereonet.matchers.learned import DISPNET_LR_TOL
     from stereonet.select.lr_check import left_right_check
 
     torch.manual_seed(1)
@@ -75,7 +74,7 @@ def test_dispnet_lr_check_marks_the_pixels_its_mirrored_run_disagrees_with(weigh
     checked = match("dispnet", left, right, 24, checkpoint=ckpt)
     assert torch.equal(checked.disparity, plain.disparity)
     mirrored = match("dispnet", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt, lr_check=False).disparity.flip(-1)
-    expected = left_right_check(checked.disparity, mirrored, DISPNET_LR_TOL)
+    expected = left_right_check(checked.disparity, mirrored)
     assert plain.valid.all() and checked.valid.dtype == torch.bool
     assert torch.equal(checked.valid, expected)
     assert 0 < checked.valid.float().mean() < 1
