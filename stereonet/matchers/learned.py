@@ -42,7 +42,7 @@ from stereonet.select.filters import (
     check_wmf_options,
     weighted_median_filter,
 )
-from stereonet.select.lr_check import left_right_check
+from stereonet.select.lr_check import LR_TOL, left_right_check
 from stereonet.types import StereoOutput
 
 BACKENDS = ("torch", "onnx")
@@ -232,26 +232,42 @@ SMD_ERROR_TAU = 2.0
 @register("smd", kind="learned", needs_weights=True,
           description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt)")
 def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
-                upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None) -> StereoOutput:
+                upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None,
+                lr_check: bool = False) -> StereoOutput:
     """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
     that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the probability under the predicted
     mixture that this answer is off by more than 2 px of that grid
     (:func:`~stereonet.models.smd.error_probability`; it ranks the head's errors better than the chosen mode's
     scale b on data_gen, docs/experiments/smd_uncertainty.txt), ``confidence = 1 - uncertainty``; extras hold
-    both modes and the mixture weight."""
+    both modes and the mixture weight. With ``lr_check`` the network also runs on the mirrored, swapped pair, as
+    ``dispnet``'s check: pixels whose two answers differ by more than the one left-right rule's tolerance (in input
+    pixels, so ``upsample`` times it on the output grid) are invalid (``--fill`` answers them) and get uncertainty 1
+    (confidence 0, the least trusted, as ``sgm`` does with its rejected pixels: the head's probability describes its
+    own answer, not the fill's); the disparity and the other pixels' uncertainty are unchanged."""
+    if not isinstance(lr_check, bool):
+        raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
     graph = network_graph("smd", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]
     hq, wq = round(h * upsample), round(w * upsample)
     small_left, small_right, scale = _downscale_to_range(left, right, max_disp, graph.max_disp)
-    disp, _, mix = _smd_predict(graph, small_left, small_right, upsample / scale)
-    if disp.shape[-2:] != (hq, wq):  # rounding of the downscaled size
-        ratio = wq / disp.shape[-1]
-        disp = resize_disparity(disp, hq, wq, mode="nearest")
-        mix = {k: F.interpolate(v, size=(hq, wq), mode="nearest") * (1.0 if k == "pi" else ratio)
-               for k, v in mix.items()}
-    disp = disp.clamp(0, max_disp * upsample)
+
+    def predict(first: torch.Tensor, second: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        disp, _, mix = _smd_predict(graph, first, second, upsample / scale)
+        if disp.shape[-2:] != (hq, wq):  # rounding of the downscaled size
+            ratio = wq / disp.shape[-1]
+            disp = resize_disparity(disp, hq, wq, mode="nearest")
+            mix = {k: F.interpolate(v, size=(hq, wq), mode="nearest") * (1.0 if k == "pi" else ratio)
+                   for k, v in mix.items()}
+        return disp.clamp(0, max_disp * upsample), mix
+
+    disp, mix = predict(small_left, small_right)
     unc = error_probability(MixtureParams(**mix), disp, SMD_ERROR_TAU)
-    return StereoOutput(disp.to(left.dtype), torch.ones_like(disp, dtype=torch.bool), uncertainty=unc.to(left.dtype),
+    valid = torch.ones_like(disp, dtype=torch.bool)
+    if lr_check:
+        disp_right = predict(small_right.flip(-1), small_left.flip(-1))[0].flip(-1)
+        valid = left_right_check(disp, disp_right, LR_TOL * upsample)
+        unc = torch.where(valid, unc, torch.ones_like(unc))
+    return StereoOutput(disp.to(left.dtype), valid, uncertainty=unc.to(left.dtype),
                         confidence=(1.0 - unc).to(left.dtype), extras={k: v.to(left.dtype) for k, v in mix.items()})
 
 

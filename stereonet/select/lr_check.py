@@ -7,6 +7,9 @@ import torch
 from stereonet.checks import StereoInputError, check_cost_volume, check_shape
 from stereonet.kernels import use_numba
 
+LR_TOL = 1.0
+"""The one left-right rule's tolerance in pixels (``left_right_check``'s default; ``sgm``'s ``disp12_max_diff``)."""
+
 
 def right_cost_volume(cost: torch.Tensor) -> torch.Tensor:
     """Right-reference volume from a left-reference one: ``cost_right[:, d, y, x] = cost[:, d, y, x + d]``.
@@ -88,7 +91,7 @@ def _difference(disp_left: torch.Tensor, disp_right: torch.Tensor) -> tuple[torc
     return (disp_left - disp_right.gather(3, idx)).abs(), inside, idx
 
 
-def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: float = 1.0,
+def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: float = LR_TOL,
                      valid_right: torch.Tensor | None = None) -> torch.Tensor:
     """The one left-right consistency rule (matchers, and ground-truth occlusion in the dataset readers and
     the training data).

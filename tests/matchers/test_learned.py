@@ -82,6 +82,31 @@ def test_dispnet_lr_check_marks_the_pixels_its_mirrored_run_disagrees_with(weigh
         match("dispnet", left, right, 24, checkpoint=ckpt, lr_check="yes")
 
 
+@pytest.mark.parametrize("upsample", [1.0, 2.0])
+def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagrees_with(weights, upsample):
+    """``smd(lr_check=True)``: the same disparity and extras as without; ``valid`` is the one left-right rule against
+    the mirrored, swapped pair's answer at a tolerance of 1 input pixel (``upsample`` pixels of the output grid);
+    rejected pixels get uncertainty 1 (confidence 0), accepted ones keep the head's; a bad value is a one-line
+    error naming the option (odd size beyond the trained range: padding and the downscaled path crossed)."""
+    from stereonet.select.lr_check import LR_TOL, left_right_check
+
+    torch.manual_seed(2)
+    left, right = torch.rand(1, 3, 37, 70), torch.rand(1, 3, 37, 70)
+    ckpt = str(weights["smd"])
+    plain = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample)
+    checked = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=True)
+    assert torch.equal(checked.disparity, plain.disparity) and plain.valid.all()
+    assert all(torch.equal(checked.extras[k], v) for k, v in plain.extras.items())
+    mirrored = match("smd", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt, upsample=upsample).disparity.flip(-1)
+    assert torch.equal(checked.valid, left_right_check(checked.disparity, mirrored, LR_TOL * upsample))
+    assert 0 < checked.valid.float().mean() < 1
+    assert torch.equal(checked.uncertainty[checked.valid], plain.uncertainty[checked.valid])
+    assert (checked.uncertainty[~checked.valid] == 1).all() and (checked.confidence[~checked.valid] == 0).all()
+    assert torch.equal(checked.confidence, 1 - checked.uncertainty)
+    with pytest.raises(StereoInputError, match="lr_check: expected True or False"):
+        match("smd", left, right, 24, checkpoint=ckpt, lr_check=1)
+
+
 @pytest.mark.skipif(not matchers.weights_available("dispnet"), reason="shipped dispnet weights not installed")
 def test_dispnet_lr_check_finds_the_occlusions_of_a_render():
     """With the shipped dispnet.pt on a data_gen render, the left-right check rejects most of the ground truth's
