@@ -1,7 +1,8 @@
 """Per-pair real bad-2 (after the shared fill) for methods with optional checkpoints: label=method[@ckpt].
 
 ``dispnet-nolr`` is ``dispnet`` without its left-right check (``lr_check=False``), as every ``dispnet`` row before the
-thirty-fifth session was measured (the check is ``dispnet``'s default since then)."""
+thirty-fifth session was measured (the check is ``dispnet``'s default since then). ``smd-lr`` / ``smd-nolr`` are ``smd``
+with / without its left-right check (``lr_check``, thirty-sixth session; docs/experiments/smd_lr.txt)."""
 import functools
 import json
 import os
@@ -10,10 +11,13 @@ import sys
 
 from stereonet import matchers
 from stereonet.evaluation import expand_data_specs, format_table, run_evaluation
-from stereonet.matchers.learned import dispnet_matcher
+from stereonet.matchers.learned import dispnet_matcher, smd_matcher
 
 matchers.register("dispnet-nolr", kind="learned", needs_weights=True,
                   description="dispnet without its left-right check")(functools.partial(dispnet_matcher, lr_check=False))
+for _name, _check in (("smd-lr", True), ("smd-nolr", False)):
+    matchers.register(_name, kind="learned", needs_weights=True,
+                      description=f"smd with lr_check={_check}")(functools.partial(smd_matcher, lr_check=_check))
 
 methods = [matchers.register_checkpoint_variant(arg) for arg in sys.argv[1].split(",")]
 specs = sys.argv[2].split(";") if len(sys.argv) > 2 else ["real"]
