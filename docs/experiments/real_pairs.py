@@ -2,7 +2,8 @@
 
 ``dispnet-nolr`` is ``dispnet`` without its left-right check (``lr_check=False``), as every ``dispnet`` row before the
 thirty-fifth session was measured (the check is ``dispnet``'s default since then). ``smd-lr`` / ``smd-nolr`` are ``smd``
-with / without its left-right check (``lr_check``, thirty-sixth session; docs/experiments/smd_lr.txt)."""
+with / without its left-right check (``lr_check``, thirty-sixth session; docs/experiments/smd_lr.txt), ``smd-lr-one``
+the check with rejected pixels at uncertainty 1 (``lr_uncertainty="one"``)."""
 import functools
 import json
 import os
@@ -15,9 +16,10 @@ from stereonet.matchers.learned import dispnet_matcher, smd_matcher
 
 matchers.register("dispnet-nolr", kind="learned", needs_weights=True,
                   description="dispnet without its left-right check")(functools.partial(dispnet_matcher, lr_check=False))
-for _name, _check in (("smd-lr", True), ("smd-nolr", False)):
+for _name, _opts in (("smd-lr", {"lr_check": True}), ("smd-lr-one", {"lr_check": True, "lr_uncertainty": "one"}),
+                     ("smd-nolr", {"lr_check": False})):
     matchers.register(_name, kind="learned", needs_weights=True,
-                      description=f"smd with lr_check={_check}")(functools.partial(smd_matcher, lr_check=_check))
+                      description=f"smd with {_opts}")(functools.partial(smd_matcher, **_opts))
 
 methods = [matchers.register_checkpoint_variant(arg) for arg in sys.argv[1].split(",")]
 specs = sys.argv[2].split(";") if len(sys.argv) > 2 else ["real"]

@@ -1,5 +1,7 @@
-"""Decision script of docs/experiments/smd_lr.txt: the shipped smd.pt without and with its left-right check
-(``smd(lr_check=True)``: rejected pixels invalid, uncertainty 1), eval.py's fill, AUSE by the head's uncertainty.
+"""Decision script of docs/experiments/smd_lr.txt: the shipped smd.pt without its left-right check (``smd-plain``),
+with it and rejected pixels at uncertainty 1 (``smd-lr``, ``lr_uncertainty="one"``; the first rule) and with it and
+rejected pixels scored by the mixture's probability that the shared fill's answer is off (``smd-lr-fill``, the
+second rule); eval.py's fill, AUSE by the uncertainty.
     python docs/experiments/smd_lr_eval.py "val2aw;val4aw;synthetic:32"
 """
 import sys
@@ -9,5 +11,7 @@ import val_sets  # noqa: E402
 
 from stereonet.matchers.learned import smd_matcher  # noqa: E402
 
-val_sets.compare({"smd-plain": (smd_matcher, {"lr_check": False}), "smd-lr": (smd_matcher, {"lr_check": True})},
+val_sets.compare({"smd-plain": (smd_matcher, {"lr_check": False}),
+                  "smd-lr": (smd_matcher, {"lr_check": True, "lr_uncertainty": "one"}),
+                  "smd-lr-fill": (smd_matcher, {"lr_check": True, "lr_uncertainty": "fill"})},
                  val_sets.expand(sys.argv[1]))

@@ -233,7 +233,7 @@ SMD_ERROR_TAU = 2.0
           description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt)")
 def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                 upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None,
-                lr_check: bool = False) -> StereoOutput:
+                lr_check: bool = False, lr_uncertainty: str = "fill") -> StereoOutput:
     """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
     that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the probability under the predicted
     mixture that this answer is off by more than 2 px of that grid
@@ -241,11 +241,16 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
     scale b on data_gen, docs/experiments/smd_uncertainty.txt), ``confidence = 1 - uncertainty``; extras hold
     both modes and the mixture weight. With ``lr_check`` the network also runs on the mirrored, swapped pair, as
     ``dispnet``'s check: pixels whose two answers differ by more than the one left-right rule's tolerance (in input
-    pixels, so ``upsample`` times it on the output grid) are invalid (``--fill`` answers them) and get uncertainty 1
-    (confidence 0, the least trusted, as ``sgm`` does with its rejected pixels: the head's probability describes its
-    own answer, not the fill's); the disparity and the other pixels' uncertainty are unchanged."""
+    pixels, so ``upsample`` times it on the output grid) are invalid (``--fill`` answers them); the disparity and the
+    other pixels' uncertainty are unchanged. A rejected pixel's uncertainty (``lr_uncertainty``): ``"fill"`` (default)
+    the mixture's probability that the shared fill's answer there
+    (:func:`~stereonet.select.fill.fill_occlusions`, what ``--fill`` outputs) is off by more than 2 px, so the
+    uncertainty describes the answer that is output; ``"one"`` uncertainty 1 (confidence 0, as ``sgm`` scores its
+    rejected pixels; negative on data_gen, docs/experiments/smd_lr.txt)."""
     if not isinstance(lr_check, bool):
         raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
+    if lr_uncertainty not in ("fill", "one"):
+        raise StereoInputError(f"lr_uncertainty: expected 'fill' or 'one', got {lr_uncertainty!r}")
     graph = network_graph("smd", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]
     hq, wq = round(h * upsample), round(w * upsample)
@@ -266,7 +271,13 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
     if lr_check:
         disp_right = predict(small_right.flip(-1), small_left.flip(-1))[0].flip(-1)
         valid = left_right_check(disp, disp_right, LR_TOL * upsample)
-        unc = torch.where(valid, unc, torch.ones_like(unc))
+        if lr_uncertainty == "one":
+            rejected = torch.ones_like(unc)
+        else:
+            from stereonet.select.fill import fill_occlusions
+
+            rejected = error_probability(MixtureParams(**mix), fill_occlusions(disp, valid), SMD_ERROR_TAU)
+        unc = torch.where(valid, unc, rejected)
     return StereoOutput(disp.to(left.dtype), valid, uncertainty=unc.to(left.dtype),
                         confidence=(1.0 - unc).to(left.dtype), extras={k: v.to(left.dtype) for k, v in mix.items()})
 

@@ -86,8 +86,12 @@ def test_dispnet_lr_check_marks_the_pixels_its_mirrored_run_disagrees_with(weigh
 def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagrees_with(weights, upsample):
     """``smd(lr_check=True)``: the same disparity and extras as without; ``valid`` is the one left-right rule against
     the mirrored, swapped pair's answer at a tolerance of 1 input pixel (``upsample`` pixels of the output grid);
-    rejected pixels get uncertainty 1 (confidence 0), accepted ones keep the head's; a bad value is a one-line
-    error naming the option (odd size beyond the trained range: padding and the downscaled path crossed)."""
+    accepted pixels keep the head's uncertainty, rejected ones get the mixture's probability that the shared fill's
+    answer is off by more than 2 px (``lr_uncertainty="one"``: 1); bad values are one-line errors naming the option
+    (odd size beyond the trained range: padding and the downscaled path crossed)."""
+    from stereonet.matchers.learned import SMD_ERROR_TAU
+    from stereonet.models.smd import MixtureParams, error_probability
+    from stereonet.select.fill import fill_occlusions
     from stereonet.select.lr_check import LR_TOL, left_right_check
 
     torch.manual_seed(2)
@@ -101,10 +105,20 @@ def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagree
     assert torch.equal(checked.valid, left_right_check(checked.disparity, mirrored, LR_TOL * upsample))
     assert 0 < checked.valid.float().mean() < 1
     assert torch.equal(checked.uncertainty[checked.valid], plain.uncertainty[checked.valid])
-    assert (checked.uncertainty[~checked.valid] == 1).all() and (checked.confidence[~checked.valid] == 0).all()
     assert torch.equal(checked.confidence, 1 - checked.uncertainty)
+    # a rejected pixel's uncertainty: the mixture's probability that the shared fill's answer is off by > 2 px
+    mix = MixtureParams(**plain.extras)
+    expected = error_probability(mix, fill_occlusions(checked.disparity, checked.valid), SMD_ERROR_TAU)
+    assert torch.allclose(checked.uncertainty[~checked.valid], expected[~checked.valid])
+    assert not torch.allclose(expected[~checked.valid], plain.uncertainty[~checked.valid])  # the fill's, not the head's
+    one = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=True, lr_uncertainty="one")
+    assert torch.equal(one.valid, checked.valid)
+    assert torch.equal(one.uncertainty[one.valid], checked.uncertainty[one.valid])
+    assert (one.uncertainty[~one.valid] == 1).all() and (one.confidence[~one.valid] == 0).all()
     with pytest.raises(StereoInputError, match="lr_check: expected True or False"):
         match("smd", left, right, 24, checkpoint=ckpt, lr_check=1)
+    with pytest.raises(StereoInputError, match="lr_uncertainty: expected 'fill' or 'one'"):
+        match("smd", left, right, 24, checkpoint=ckpt, lr_check=True, lr_uncertainty="max")
 
 
 @pytest.mark.skipif(not matchers.weights_available("dispnet"), reason="shipped dispnet weights not installed")
