@@ -2,8 +2,8 @@
 the disparity of its own DispNet backbone (the same weights, the head skipped), on the given data specs.
 
 The backbone of ``SMDNet`` is a ``DispNet``; its weights are written to a temporary dispnet weights file and run
-through the ``dispnet`` matcher (same padding and range handling as ``smd``; without its left-right check, which
-``smd`` does not have: ``dispnet-nolr`` of real_pairs.py).
+through the ``dispnet`` matcher (same padding and range handling as ``smd``); both as trained, without the left-right
+check that each runs by default (``smd-nolr`` and ``dispnet-nolr`` of real_pairs.py).
 
     python docs/experiments/smd_head_vs_backbone.py [WEIGHTS.pt] "real;synthetic:32"
 """
@@ -25,5 +25,5 @@ with tempfile.TemporaryDirectory() as tmp:
     here = os.path.dirname(os.path.abspath(__file__))
     for spec in specs.split(";"):
         subprocess.run([sys.executable, os.path.join(here, "real_pairs.py"),
-                        f"smd-head=smd@{smd_file},smd-backbone=dispnet-nolr@{backbone_file}", spec,
+                        f"smd-head=smd-nolr@{smd_file},smd-backbone=dispnet-nolr@{backbone_file}", spec,
                         os.path.join(tmp, "pairs.json")], check=True)

@@ -12,10 +12,10 @@ from stereonet.select.lr_check import left_right_check  # noqa: E402
 
 
 def smd_lr(left, right, max_disp):
-    a = smd_matcher(left, right, max_disp)
-    b = smd_matcher(right.flip(-1), left.flip(-1), max_disp)
+    a = smd_matcher(left, right, max_disp, lr_check=False)
+    b = smd_matcher(right.flip(-1), left.flip(-1), max_disp, lr_check=False)
     a.valid = left_right_check(a.disparity, b.disparity.flip(-1), 1.0)
     return a
 
 
-val_sets.compare({"smd-plain": (smd_matcher, {}), "smd-lr": (smd_lr, {})}, val_sets.expand(sys.argv[1]))
+val_sets.compare({"smd-plain": (smd_matcher, {"lr_check": False}), "smd-lr": (smd_lr, {})}, val_sets.expand(sys.argv[1]))

@@ -230,17 +230,18 @@ SMD_ERROR_TAU = 2.0
 
 
 @register("smd", kind="learned", needs_weights=True,
-          description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt)")
+          description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt) "
+                      "+ a left-right check")
 def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                 upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None,
-                lr_check: bool = False, lr_uncertainty: str = "fill") -> StereoOutput:
+                lr_check: bool = True, lr_uncertainty: str = "fill") -> StereoOutput:
     """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
     that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the probability under the predicted
     mixture that this answer is off by more than 2 px of that grid
     (:func:`~stereonet.models.smd.error_probability`; it ranks the head's errors better than the chosen mode's
     scale b on data_gen, docs/experiments/smd_uncertainty.txt), ``confidence = 1 - uncertainty``; extras hold
-    both modes and the mixture weight. With ``lr_check`` the network also runs on the mirrored, swapped pair, as
-    ``dispnet``'s check: pixels whose two answers differ by more than the one left-right rule's tolerance (in input
+    both modes and the mixture weight. With ``lr_check`` (the default since the thirty-sixth session, by a data_gen
+    rule: docs/experiments/smd_lr.txt) the network also runs on the mirrored, swapped pair, as ``dispnet``'s check: pixels whose two answers differ by more than the one left-right rule's tolerance (in input
     pixels, so ``upsample`` times it on the output grid) are invalid (``--fill`` answers them); the disparity and the
     other pixels' uncertainty are unchanged. A rejected pixel's uncertainty (``lr_uncertainty``): ``"fill"`` (default)
     the mixture's probability that the shared fill's answer there

@@ -84,7 +84,7 @@ def test_dispnet_lr_check_marks_the_pixels_its_mirrored_run_disagrees_with(weigh
 
 @pytest.mark.parametrize("upsample", [1.0, 2.0])
 def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagrees_with(weights, upsample):
-    """``smd(lr_check=True)``: the same disparity and extras as without; ``valid`` is the one left-right rule against
+    """``smd`` checks by default (``lr_check=True``): the same disparity and extras as without; ``valid`` is the one left-right rule against
     the mirrored, swapped pair's answer at a tolerance of 1 input pixel (``upsample`` pixels of the output grid);
     accepted pixels keep the head's uncertainty, rejected ones get the mixture's probability that the shared fill's
     answer is off by more than 2 px (``lr_uncertainty="one"``: 1); bad values are one-line errors naming the option
@@ -97,11 +97,12 @@ def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagree
     torch.manual_seed(2)
     left, right = torch.rand(1, 3, 37, 70), torch.rand(1, 3, 37, 70)
     ckpt = str(weights["smd"])
-    plain = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample)
-    checked = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=True)
+    plain = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=False)
+    checked = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample)  # the default checks
     assert torch.equal(checked.disparity, plain.disparity) and plain.valid.all()
     assert all(torch.equal(checked.extras[k], v) for k, v in plain.extras.items())
-    mirrored = match("smd", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt, upsample=upsample).disparity.flip(-1)
+    mirrored = match("smd", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt, upsample=upsample,
+                     lr_check=False).disparity.flip(-1)
     assert torch.equal(checked.valid, left_right_check(checked.disparity, mirrored, LR_TOL * upsample))
     assert 0 < checked.valid.float().mean() < 1
     assert torch.equal(checked.uncertainty[checked.valid], plain.uncertainty[checked.valid])
