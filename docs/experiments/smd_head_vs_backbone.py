@@ -3,9 +3,10 @@ the disparity of its own DispNet backbone (the same weights, the head skipped), 
 
 The backbone of ``SMDNet`` is a ``DispNet``; its weights are written to a temporary dispnet weights file and run
 through the ``dispnet`` matcher (same padding and range handling as ``smd``); both as trained, without the left-right
-check that each runs by default (``smd-nolr`` and ``dispnet-nolr`` of real_pairs.py).
+check that each runs by default (``smd-nolr`` and ``dispnet-nolr`` of real_pairs.py); with ``--lr-check`` both as they
+run by default (each with its left-right check, then the shared fill: the same post-processing on both sides).
 
-    python docs/experiments/smd_head_vs_backbone.py [WEIGHTS.pt] "real;synthetic:32"
+    python docs/experiments/smd_head_vs_backbone.py [--lr-check] [WEIGHTS.pt] "real;synthetic:32"
 """
 import os
 import subprocess
@@ -14,8 +15,11 @@ import tempfile
 
 from stereonet.models.weights import default_weights_path, load_weights, save_weights
 
-smd_file = sys.argv[1] if len(sys.argv) > 2 else str(default_weights_path("smd"))
-specs = sys.argv[-1] if len(sys.argv) > 1 else "real"
+checked = "--lr-check" in sys.argv[1:]
+args = [a for a in sys.argv[1:] if a != "--lr-check"]
+smd_file = args[0] if len(args) > 1 else str(default_weights_path("smd"))
+specs = args[-1] if args else "real"
+head, backbone = ("smd", "dispnet") if checked else ("smd-nolr", "dispnet-nolr")
 net, info = load_weights(smd_file, expected="smd")
 b = net.backbone
 config = {"max_disp": b.max_disp, "channels": b.channels, "aggregation": b.aggregation, "upsample": b.upsample}
@@ -25,5 +29,5 @@ with tempfile.TemporaryDirectory() as tmp:
     here = os.path.dirname(os.path.abspath(__file__))
     for spec in specs.split(";"):
         subprocess.run([sys.executable, os.path.join(here, "real_pairs.py"),
-                        f"smd-head=smd-nolr@{smd_file},smd-backbone=dispnet-nolr@{backbone_file}", spec,
+                        f"smd-head={head}@{smd_file},smd-backbone={backbone}@{backbone_file}", spec,
                         os.path.join(tmp, "pairs.json")], check=True)
