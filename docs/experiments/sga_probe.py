@@ -30,7 +30,7 @@ def score(d, padder, gt, valid):
     return 100 * float((err > 2).float().mean()), 100 * float((err > 8).float().mean())
 
 
-def main(path="stereonet/weights/dispnet.pt"):
+def main(path="docs/experiments/weights/dispnet_shipped22.pt"):
     net, _ = load_weights(path)
     captured = {}
     original = dn.soft_argmax
