@@ -22,7 +22,10 @@ specs = args[-1] if args else "real"
 head, backbone = ("smd", "dispnet") if checked else ("smd-nolr", "dispnet-nolr")
 net, info = load_weights(smd_file, expected="smd")
 b = net.backbone
-config = {"max_disp": b.max_disp, "channels": b.channels, "aggregation": b.aggregation, "upsample": b.upsample}
+# the backbone's own configuration (its matching too: a census backbone read as a learned-feature one would load the
+# same tensors and compute something else; this script predates census backbones and missed it until now)
+config = {k: v for k, v in info["config"].items() if k in ("max_disp", "channels", "aggregation", "upsample",
+                                                           "matching", "groups", "refine_radius")}
 with tempfile.TemporaryDirectory() as tmp:
     backbone_file = os.path.join(tmp, "smd_backbone.pt")
     save_weights(backbone_file, "dispnet", config, b)
