@@ -35,6 +35,7 @@ from stereonet.models.layers import InputPadder, resize_disparity
 from stereonet.models.siamese import siamese_cost_volume, tower_dtype
 from stereonet.models.smd import MixtureParams, error_probability, mixture_outputs, padded_query_grid
 from stereonet.models.weights import default_weights_path, load_weights
+from stereonet.select.fill import fill_occlusions
 from stereonet.select.filters import (
     WMF_RADIUS,
     WMF_SIGMA_COLOR,
@@ -241,9 +242,10 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
     (:func:`~stereonet.models.smd.error_probability`; it ranks the head's errors better than the chosen mode's
     scale b on data_gen, docs/experiments/smd_uncertainty.txt), ``confidence = 1 - uncertainty``; extras hold
     both modes and the mixture weight. With ``lr_check`` (the default since the thirty-sixth session, by a data_gen
-    rule: docs/experiments/smd_lr.txt) the network also runs on the mirrored, swapped pair, as ``dispnet``'s check: pixels whose two answers differ by more than the one left-right rule's tolerance (in input
-    pixels, so ``upsample`` times it on the output grid) are invalid (``--fill`` answers them); the disparity and the
-    other pixels' uncertainty are unchanged. A rejected pixel's uncertainty (``lr_uncertainty``): ``"fill"`` (default)
+    rule: docs/experiments/smd_lr.txt) the network also runs on the mirrored, swapped pair, as ``dispnet``'s check:
+    pixels whose two answers differ by more than the one left-right rule's tolerance (in input pixels, so
+    ``upsample`` times it on the output grid) are invalid (``--fill`` answers them); the disparity and the other
+    pixels' uncertainty are unchanged. A rejected pixel's uncertainty (``lr_uncertainty``): ``"fill"`` (default)
     the mixture's probability that the shared fill's answer there
     (:func:`~stereonet.select.fill.fill_occlusions`, what ``--fill`` outputs) is off by more than 2 px, so the
     uncertainty describes the answer that is output; ``"one"`` uncertainty 1 (confidence 0, as ``sgm`` scores its
@@ -275,8 +277,6 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
         if lr_uncertainty == "one":
             rejected = torch.ones_like(unc)
         else:
-            from stereonet.select.fill import fill_occlusions
-
             rejected = error_probability(MixtureParams(**mix), fill_occlusions(disp, valid), SMD_ERROR_TAU)
         unc = torch.where(valid, unc, rejected)
     return StereoOutput(disp.to(left.dtype), valid, uncertainty=unc.to(left.dtype),

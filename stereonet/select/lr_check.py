@@ -8,7 +8,7 @@ from stereonet.checks import StereoInputError, check_cost_volume, check_shape
 from stereonet.kernels import use_numba
 
 LR_TOL = 1.0
-"""The one left-right rule's tolerance in pixels (``left_right_check``'s default; ``sgm``'s ``disp12_max_diff``)."""
+"""The one left-right rule's tolerance in pixels (``left_right_check``'s default)."""
 
 
 def right_cost_volume(cost: torch.Tensor) -> torch.Tensor:
