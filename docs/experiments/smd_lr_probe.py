@@ -14,7 +14,7 @@ from stereonet.select.lr_check import left_right_check  # noqa: E402
 def smd_lr(left, right, max_disp):
     a = smd_matcher(left, right, max_disp, lr_check=False)
     b = smd_matcher(right.flip(-1), left.flip(-1), max_disp, lr_check=False)
-    a.valid = left_right_check(a.disparity, b.disparity.flip(-1), 1.0)
+    a.valid = left_right_check(a.disparity, b.disparity.flip(-1))  # the one rule's 1 px
     return a
 
 

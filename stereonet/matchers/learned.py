@@ -269,7 +269,8 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
         return disp.clamp(0, max_disp * upsample), mix
 
     disp, mix = predict(small_left, small_right)
-    unc = error_probability(MixtureParams(**mix), disp, SMD_ERROR_TAU)
+    params = MixtureParams(**mix)
+    unc = error_probability(params, disp, SMD_ERROR_TAU)
     valid = torch.ones_like(disp, dtype=torch.bool)
     if lr_check:
         disp_right = predict(small_right.flip(-1), small_left.flip(-1))[0].flip(-1)
@@ -277,7 +278,7 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
         if lr_uncertainty == "one":
             rejected = torch.ones_like(unc)
         else:
-            rejected = error_probability(MixtureParams(**mix), fill_occlusions(disp, valid), SMD_ERROR_TAU)
+            rejected = error_probability(params, fill_occlusions(disp, valid), SMD_ERROR_TAU)
         unc = torch.where(valid, unc, rejected)
     return StereoOutput(disp.to(left.dtype), valid, uncertainty=unc.to(left.dtype),
                         confidence=(1.0 - unc).to(left.dtype), extras={k: v.to(left.dtype) for k, v in mix.items()})
