@@ -49,7 +49,8 @@ run: never rendered), ``val2at``/``val4at`` on seeds 5285/5286 (dispnet's left-r
 on seeds 5287/5288 (dispnet trained on non-occluded pixels), ``val2av``/``val4av`` on seeds 5289/5290 (the
 thirty-sixth session's shipped recipe trained on non-occluded pixels), ``val2aw``/``val4aw`` on seeds 5291/5292 (its
 left-right check for smd), ``val2ax``/``val4ax`` on seeds 5293/5294 (its second rule: rejected pixels scored by the
-mixture), ``val2ay``/``val4ay`` on seeds 5295/5296 (smd's head on the new dispnet.pt); any other spec as
+mixture), ``val2ay``/``val4ay`` on seeds 5295/5296 (smd's head on the new dispnet.pt), ``val2az``/``val4az`` and
+``wb2m``/``wb4m`` on seeds 5297-5300 (the thirty-seventh session's weighted median after dispnet); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -119,7 +120,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2ar": (12, 5281, 2), "val4ar": (8, 5282, 4), "val2as": (12, 5283, 2), "val4as": (8, 5284, 4),
         "val2at": (12, 5285, 2), "val4at": (8, 5286, 4), "val2au": (12, 5287, 2), "val4au": (8, 5288, 4),
         "val2av": (12, 5289, 2), "val4av": (8, 5290, 4), "val2aw": (12, 5291, 2), "val4aw": (8, 5292, 4),
-        "val2ax": (12, 5293, 2), "val4ax": (8, 5294, 4), "val2ay": (12, 5295, 2), "val4ay": (8, 5296, 4)}
+        "val2ax": (12, 5293, 2), "val4ax": (8, 5294, 4), "val2ay": (12, 5295, 2), "val4ay": (8, 5296, 4),
+        "val2az": (12, 5297, 2), "val4az": (8, 5298, 4),
+        "wb2m": (12, 5299, 2, {"weak_background": 1.0}), "wb4m": (8, 5300, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
