@@ -48,5 +48,5 @@ def test_wheel_installs_and_runs_a_learned_matcher(tmp_path):
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     info = json.loads((work / "out" / "info.json").read_text())
-    # dispnet's left-right check leaves occlusions and mismatches to the fill
-    assert info["method"] == "dispnet" and 50 < info["density_before_fill"] < info["density"] and info["density"] > 90
+    # dispnet fills the pixels its left-right check rejects and filters the map itself: every pixel valid
+    assert info["method"] == "dispnet" and info["density_before_fill"] == info["density"] == 100

@@ -14,8 +14,9 @@ from stereonet.types import StereoOutput  # noqa: E402
 
 def lr_at(left, right, max_disp, tol, checkpoint=None):
     """The check at another tolerance (the matcher's is fixed at 1 px)."""
-    a = dispnet_matcher(left, right, max_disp, checkpoint=checkpoint, lr_check=False)
-    b = dispnet_matcher(right.flip(-1), left.flip(-1), max_disp, checkpoint=checkpoint, lr_check=False)
+    a = dispnet_matcher(left, right, max_disp, checkpoint=checkpoint, lr_check=False, wmf_radius=0)
+    b = dispnet_matcher(right.flip(-1), left.flip(-1), max_disp, checkpoint=checkpoint, lr_check=False,
+                        wmf_radius=0)
     return StereoOutput(a.disparity, left_right_check(a.disparity, b.disparity.flip(-1), tol))
 
 

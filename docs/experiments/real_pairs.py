@@ -3,7 +3,10 @@
 ``dispnet-nolr`` is ``dispnet`` without its left-right check (``lr_check=False``), as every ``dispnet`` row before the
 thirty-fifth session was measured (the check is ``dispnet``'s default since then). ``smd-lr`` / ``smd-nolr`` are ``smd``
 with / without its left-right check (``lr_check``, thirty-sixth session; docs/experiments/smd_lr.txt), ``smd-lr-one``
-the check with rejected pixels at uncertainty 1 (``lr_uncertainty="one"``)."""
+the check with rejected pixels at uncertainty 1 (``lr_uncertainty="one"``). ``dispnet-nowmf`` is ``dispnet`` with its
+check but without the weighted median after it (``wmf_radius=0``), as ``dispnet`` ran in the thirty-fifth and
+thirty-sixth sessions (the filter is its default since the thirty-seventh; docs/experiments/dispnet_wmf.txt);
+``dispnet-nolr`` is also without the filter."""
 import functools
 import json
 import os
@@ -15,7 +18,10 @@ from stereonet.evaluation import expand_data_specs, format_table, run_evaluation
 from stereonet.matchers.learned import dispnet_matcher, smd_matcher
 
 matchers.register("dispnet-nolr", kind="learned", needs_weights=True,
-                  description="dispnet without its left-right check")(functools.partial(dispnet_matcher, lr_check=False))
+                  description="dispnet without its left-right check")(functools.partial(dispnet_matcher, lr_check=False,
+                                                                                       wmf_radius=0))
+matchers.register("dispnet-nowmf", kind="learned", needs_weights=True,
+                  description="dispnet without its weighted median")(functools.partial(dispnet_matcher, wmf_radius=0))
 for _name, _opts in (("smd-lr", {"lr_check": True}), ("smd-lr-one", {"lr_check": True, "lr_uncertainty": "one"}),
                      ("smd-nolr", {"lr_check": False})):
     matchers.register(_name, kind="learned", needs_weights=True,

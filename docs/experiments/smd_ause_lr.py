@@ -28,8 +28,9 @@ def main() -> None:
         gt, valid, max_disp = item["disparity"][None], item["valid"][None].bool(), int(item["max_disp"])
         name = str(item["name"])
         for method in ("smd", "dispnet"):
-            out = matchers.match(method, left, right, max_disp, lr_check=False)  # as recorded: no check
-            mirrored = matchers.match(method, right.flip(-1), left.flip(-1), max_disp, lr_check=False)
+            plain = {"lr_check": False, **({"wmf_radius": 0} if method == "dispnet" else {})}  # as recorded
+            out = matchers.match(method, left, right, max_disp, **plain)
+            mirrored = matchers.match(method, right.flip(-1), left.flip(-1), max_disp, **plain)
             disp_right = mirrored.disparity.flip(-1)
             lr = left_right_difference(out.disparity, disp_right)
             r = rows.setdefault(method, {})

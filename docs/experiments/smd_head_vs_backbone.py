@@ -4,7 +4,9 @@ the disparity of its own DispNet backbone (the same weights, the head skipped), 
 The backbone of ``SMDNet`` is a ``DispNet``; its weights are written to a temporary dispnet weights file and run
 through the ``dispnet`` matcher (same padding and range handling as ``smd``); both as trained, without the left-right
 check that each runs by default (``smd-nolr`` and ``dispnet-nolr`` of real_pairs.py); with ``--lr-check`` both as they
-run by default (each with its left-right check, then the shared fill: the same post-processing on both sides).
+run by default (each with its left-right check, then the shared fill: the same post-processing on both sides; the
+backbone without the weighted median that is ``dispnet``'s default since the thirty-seventh session, ``dispnet-nowmf``,
+since ``smd`` has none).
 
     python docs/experiments/smd_head_vs_backbone.py [--lr-check] [WEIGHTS.pt] "real;synthetic:32"
 """
@@ -19,7 +21,7 @@ checked = "--lr-check" in sys.argv[1:]
 args = [a for a in sys.argv[1:] if a != "--lr-check"]
 smd_file = args[0] if len(args) > 1 else str(default_weights_path("smd"))
 specs = args[-1] if args else "real"
-head, backbone = ("smd", "dispnet") if checked else ("smd-nolr", "dispnet-nolr")
+head, backbone = ("smd", "dispnet-nowmf") if checked else ("smd-nolr", "dispnet-nolr")
 net, info = load_weights(smd_file, expected="smd")
 b = net.backbone
 # the backbone's own configuration (its matching too: a census backbone read as a learned-feature one would load the

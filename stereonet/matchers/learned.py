@@ -196,18 +196,28 @@ def _smd_predict(graph: NetworkGraph | OnnxGraph, left: torch.Tensor, right: tor
 
 
 @register("dispnet", kind="learned", needs_weights=True,
-          description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt) + a left-right check")
+          description="DispNet-style correlation U-Net trained on data_gen (weights/dispnet.pt) + a left-right check "
+                      "+ an image-guided weighted median")
 def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
-                    backend: str = "torch", onnx_model: str | None = None, lr_check: bool = True) -> StereoOutput:
+                    backend: str = "torch", onnx_model: str | None = None, lr_check: bool = True,
+                    wmf_radius: int = WMF_RADIUS, wmf_sigma_color: float = WMF_SIGMA_COLOR,
+                    wmf_stride: int = WMF_STRIDE) -> StereoOutput:
     """DispNet prediction :math:`(B, 1, H, W)`, clamped to [0, max_disp]. With ``lr_check`` (the default since the
     thirty-fifth session, by a data_gen rule: docs/experiments/dispnet_lr.txt) the network also runs on the
     mirrored, swapped pair (its left-referenced answer there, mirrored back, is the right view's map) and the
     pixels whose two answers disagree by more than the project's one left-right rule allows
-    (:func:`~stereonet.select.lr_check.left_right_check` at its default 1 px, as ``sgm``'s) are invalid (occlusions
-    and mismatches; ``eval.py --fill`` and ``infer.py --fill`` fill them by the shared rule); without it every pixel
-    is valid. The disparity itself is the same either way."""
+    (:func:`~stereonet.select.lr_check.left_right_check` at its default 1 px, as ``sgm``'s) are rejected
+    (occlusions and mismatches). Then, unless ``wmf_radius`` is 0 (the default since the thirty-seventh session, by
+    a data_gen rule: docs/experiments/dispnet_wmf.txt), the rejected pixels are filled by the shared rule
+    (:func:`~stereonet.select.fill.fill_occlusions`, as ``eval.py --fill``) and the map goes through the
+    image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, radius ``wmf_radius``,
+    ``wmf_sigma_color``, votes every ``wmf_stride`` px capped at the radius; ``sgm-refine``'s filter) against
+    foreground fattening: every pixel valid, ``extras["lr_consistent"]`` the check's validity and
+    ``extras["unfiltered"]`` the network's map. With ``wmf_radius=0`` the rejected pixels are invalid (``--fill``
+    fills them); without the check and the filter every pixel is valid and the disparity is the network's."""
     if not isinstance(lr_check, bool):
         raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
+    check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     graph = network_graph("dispnet", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]
     small_left, small_right, _ = _downscale_to_range(left, right, max_disp, graph.max_disp)
@@ -220,10 +230,15 @@ def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, chec
         return disp.clamp(0, max_disp).to(left.dtype)
 
     disp = predict(small_left, small_right)
-    if not lr_check:
-        return StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool))
-    disp_right = predict(small_right.flip(-1), small_left.flip(-1)).flip(-1)
-    return StereoOutput(disp, left_right_check(disp, disp_right))
+    valid = torch.ones_like(disp, dtype=torch.bool)
+    if lr_check:
+        disp_right = predict(small_right.flip(-1), small_left.flip(-1)).flip(-1)
+        valid = left_right_check(disp, disp_right)
+    if not wmf_radius:
+        return StereoOutput(disp, valid)
+    filtered = weighted_median_filter(fill_occlusions(disp, valid), left, radius=wmf_radius,
+                                      sigma_color=wmf_sigma_color, stride=min(wmf_stride, wmf_radius))
+    return StereoOutput(filtered, torch.ones_like(valid), extras={"lr_consistent": valid, "unfiltered": disp})
 
 
 SMD_ERROR_TAU = 2.0

@@ -61,25 +61,58 @@ def test_beyond_trained_range_runs_downscaled(weights):
 
 
 def test_dispnet_lr_check_marks_the_pixels_its_mirrored_run_disagrees_with(weights):
-    """``dispnet`` checks by default (``lr_check=True``): the same disparity as without, and ``valid`` is the
-    project's left-right rule against the network's answer on the mirrored, swapped pair, mirrored back (here on
-    an odd size beyond the trained range, so padding and the downscaled path are crossed); a bad value is a
-    one-line error naming the option."""
+    """``dispnet``'s check (``lr_check=True``, the default; here without the filter, ``wmf_radius=0``): the same
+    disparity as without, and ``valid`` is the project's left-right rule against the network's answer on the
+    mirrored, swapped pair, mirrored back (here on an odd size beyond the trained range, so padding and the
+    downscaled path are crossed); a bad value is a one-line error naming the option."""
     from stereonet.select.lr_check import left_right_check
 
     torch.manual_seed(1)
     left, right = torch.rand(1, 3, 37, 70), torch.rand(1, 3, 37, 70)
     ckpt = str(weights["dispnet"])
-    plain = match("dispnet", left, right, 24, checkpoint=ckpt, lr_check=False)
-    checked = match("dispnet", left, right, 24, checkpoint=ckpt)
+    plain = match("dispnet", left, right, 24, checkpoint=ckpt, lr_check=False, wmf_radius=0)
+    checked = match("dispnet", left, right, 24, checkpoint=ckpt, wmf_radius=0)
     assert torch.equal(checked.disparity, plain.disparity)
-    mirrored = match("dispnet", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt, lr_check=False).disparity.flip(-1)
+    mirrored = match("dispnet", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt, lr_check=False,
+                     wmf_radius=0).disparity.flip(-1)
     expected = left_right_check(checked.disparity, mirrored)
     assert plain.valid.all() and checked.valid.dtype == torch.bool
     assert torch.equal(checked.valid, expected)
     assert 0 < checked.valid.float().mean() < 1
     with pytest.raises(StereoInputError, match="lr_check: expected True or False"):
         match("dispnet", left, right, 24, checkpoint=ckpt, lr_check="yes")
+
+
+def test_dispnet_default_fills_the_check_then_filters_with_the_weighted_median(weights):
+    """By default ``dispnet`` fills the pixels its check rejects by the shared rule and filters the map with the
+    image-guided weighted median (radius 9, colour scale 0.2, stride 2): every pixel valid, the check's validity and
+    the network's own map kept in the extras; other filter options pass through, and ``lr_check=False`` filters the
+    network's map as it is; bad filter options are one-line errors naming the option."""
+    from stereonet.select.fill import fill_occlusions
+    from stereonet.select.filters import weighted_median_filter
+
+    torch.manual_seed(3)
+    base = torch.rand(1, 3, 40, 72)
+    left, right = base, torch.roll(base, -5, dims=-1)  # a pair with a match, so the map has structure
+    ckpt = str(weights["dispnet"])
+    bare = match("dispnet", left, right, 24, checkpoint=ckpt, wmf_radius=0)
+    out = match("dispnet", left, right, 24, checkpoint=ckpt)
+    assert out.valid.all() and torch.equal(out.extras["lr_consistent"], bare.valid)
+    assert torch.equal(out.extras["unfiltered"], bare.disparity)
+    expected = weighted_median_filter(fill_occlusions(bare.disparity, bare.valid), left, radius=9, sigma_color=0.2,
+                                      stride=2)
+    assert torch.equal(out.disparity, expected)
+    small = match("dispnet", left, right, 24, checkpoint=ckpt, wmf_radius=3, wmf_sigma_color=0.1, wmf_stride=5)
+    assert torch.equal(small.disparity, weighted_median_filter(fill_occlusions(bare.disparity, bare.valid), left,
+                                                               radius=3, sigma_color=0.1, stride=3))
+    unchecked = match("dispnet", left, right, 24, checkpoint=ckpt, lr_check=False)
+    assert torch.equal(unchecked.disparity, weighted_median_filter(bare.disparity, left, radius=9, sigma_color=0.2,
+                                                                   stride=2))
+    for options, message in ((dict(wmf_radius=-1), "wmf_radius: expected an integer >= 0"),
+                             (dict(wmf_sigma_color=0.0), "wmf_sigma_color: expected a value > 0"),
+                             (dict(wmf_stride=0), "wmf_stride: expected an integer >= 1")):
+        with pytest.raises(StereoInputError, match=message):
+            match("dispnet", left, right, 24, checkpoint=ckpt, **options)
 
 
 @pytest.mark.parametrize("upsample", [1.0, 2.0])
@@ -126,11 +159,13 @@ def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagree
 def test_dispnet_lr_check_finds_the_occlusions_of_a_render():
     """With the shipped dispnet.pt on a data_gen render, the left-right check rejects most of the ground truth's
     occlusions (a share there at least twice the share elsewhere), and elsewhere the pixels it rejects are
-    mismatches: their bad-2 rate at least twice the accepted pixels'."""
+    mismatches: their bad-2 rate at least twice the accepted pixels'; the default's weighted median then moves some
+    pixels (not most)."""
     import data_gen
+    from stereonet.select.fill import fill_occlusions
 
     item = data_gen.SyntheticStereo(1, seed=12, difficulty=2, height=96, width=192)[0]
-    out = match("dispnet", item["left"][None], item["right"][None], item["max_disp"])
+    out = match("dispnet", item["left"][None], item["right"][None], item["max_disp"], wmf_radius=0)
     occluded = item["occlusion"][None] & item["valid"][None]
     visible = ~item["occlusion"][None] & item["valid"][None]
     assert occluded.any() and visible.any()
@@ -140,6 +175,10 @@ def test_dispnet_lr_check_finds_the_occlusions_of_a_render():
     bad = (out.disparity - item["disparity"][None]).abs() > 2
     bad_rejected, bad_accepted = bad[visible & ~out.valid].float().mean(), bad[visible & out.valid].float().mean()
     assert bad_rejected > 2 * bad_accepted, (bad_rejected, bad_accepted)
+    # the default then fills and filters: on a render with depth edges the weighted median moves some pixels
+    filtered = match("dispnet", item["left"][None], item["right"][None], item["max_disp"])
+    moved = (filtered.disparity - fill_occlusions(out.disparity, out.valid)).abs() > 0.5
+    assert filtered.valid.all() and 0 < moved.float().mean() < 0.5
 
 
 def test_wrong_checkpoint_and_missing_weights(weights, tmp_path, monkeypatch):
