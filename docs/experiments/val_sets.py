@@ -50,7 +50,8 @@ on seeds 5287/5288 (dispnet trained on non-occluded pixels), ``val2av``/``val4av
 thirty-sixth session's shipped recipe trained on non-occluded pixels), ``val2aw``/``val4aw`` on seeds 5291/5292 (its
 left-right check for smd), ``val2ax``/``val4ax`` on seeds 5293/5294 (its second rule: rejected pixels scored by the
 mixture), ``val2ay``/``val4ay`` on seeds 5295/5296 (smd's head on the new dispnet.pt), ``val2az``/``val4az`` and
-``wb2m``/``wb4m`` on seeds 5297-5300 (the thirty-seventh session's weighted median after dispnet); any other spec as
+``wb2m``/``wb4m`` on seeds 5297-5300 (the thirty-seventh session's weighted median after dispnet), ``val2ba``/``val4ba``
+and ``wb2n``/``wb4n`` on seeds 5301-5304 (the same after smd); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -122,7 +123,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "val2av": (12, 5289, 2), "val4av": (8, 5290, 4), "val2aw": (12, 5291, 2), "val4aw": (8, 5292, 4),
         "val2ax": (12, 5293, 2), "val4ax": (8, 5294, 4), "val2ay": (12, 5295, 2), "val4ay": (8, 5296, 4),
         "val2az": (12, 5297, 2), "val4az": (8, 5298, 4),
-        "wb2m": (12, 5299, 2, {"weak_background": 1.0}), "wb4m": (8, 5300, 4, {"weak_background": 1.0})}
+        "wb2m": (12, 5299, 2, {"weak_background": 1.0}), "wb4m": (8, 5300, 4, {"weak_background": 1.0}),
+        "val2ba": (12, 5301, 2), "val4ba": (8, 5302, 4),
+        "wb2n": (12, 5303, 2, {"weak_background": 1.0}), "wb4n": (8, 5304, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

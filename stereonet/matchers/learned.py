@@ -250,7 +250,8 @@ SMD_ERROR_TAU = 2.0
                       "+ a left-right check")
 def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                 upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None,
-                lr_check: bool = True, lr_uncertainty: str = "fill") -> StereoOutput:
+                lr_check: bool = True, lr_uncertainty: str = "fill", wmf_radius: int = 0,
+                wmf_sigma_color: float = WMF_SIGMA_COLOR, wmf_stride: int = WMF_STRIDE) -> StereoOutput:
     """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
     that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the probability under the predicted
     mixture that this answer is off by more than 2 px of that grid
@@ -264,11 +265,18 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
     the mixture's probability that the shared fill's answer there
     (:func:`~stereonet.select.fill.fill_occlusions`, what ``--fill`` outputs) is off by more than 2 px, so the
     uncertainty describes the answer that is output; ``"one"`` uncertainty 1 (confidence 0, as ``sgm`` scores its
-    rejected pixels; negative on data_gen, docs/experiments/smd_lr.txt)."""
+    rejected pixels; negative on data_gen, docs/experiments/smd_lr.txt). ``wmf_radius`` > 0 (off by default;
+    docs/experiments/smd_wmf.txt): the map, its rejected pixels filled by the shared rule, then goes through
+    ``dispnet``'s image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`; radius,
+    stride and the 1 px step that marks a discontinuity in input pixels, so ``upsample`` times them on the output
+    grid, guided by the left image resized bilinearly to that grid): every pixel valid, the uncertainty the
+    mixture's probability that the filtered answer is off by more than 2 px (1 at rejected pixels with
+    ``lr_uncertainty="one"``), ``extras["lr_consistent"]`` the check's validity, ``extras["unfiltered"]`` the mode."""
     if not isinstance(lr_check, bool):
         raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
     if lr_uncertainty not in ("fill", "one"):
         raise StereoInputError(f"lr_uncertainty: expected 'fill' or 'one', got {lr_uncertainty!r}")
+    check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     graph = network_graph("smd", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]
     hq, wq = round(h * upsample), round(w * upsample)
@@ -285,18 +293,26 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
 
     disp, mix = predict(small_left, small_right)
     params = MixtureParams(**mix)
-    unc = error_probability(params, disp, SMD_ERROR_TAU)
     valid = torch.ones_like(disp, dtype=torch.bool)
+    extras = {k: v.to(left.dtype) for k, v in mix.items()}
     if lr_check:
         disp_right = predict(small_right.flip(-1), small_left.flip(-1))[0].flip(-1)
         valid = left_right_check(disp, disp_right, LR_TOL * upsample)
-        if lr_uncertainty == "one":
-            rejected = torch.ones_like(unc)
-        else:
-            rejected = error_probability(params, fill_occlusions(disp, valid), SMD_ERROR_TAU)
-        unc = torch.where(valid, unc, rejected)
+    answer = fill_occlusions(disp, valid) if lr_check else disp  # what --fill outputs (the mode where accepted)
+    if wmf_radius:
+        radius = max(1, round(wmf_radius * upsample))  # input pixels -> the output grid's
+        guide = left if (hq, wq) == (h, w) else F.interpolate(left, size=(hq, wq), mode="bilinear",
+                                                               align_corners=False)
+        answer = weighted_median_filter(answer, guide.to(disp.dtype), radius=radius, sigma_color=wmf_sigma_color,
+                                        stride=min(max(1, round(wmf_stride * upsample)), radius), jump=upsample)
+        extras.update(lr_consistent=valid, unfiltered=disp.to(left.dtype))
+    unc = error_probability(params, answer, SMD_ERROR_TAU)  # the answer that is output is off by more than 2 px
+    if lr_uncertainty == "one":
+        unc = torch.where(valid, unc, torch.ones_like(unc))
+    if wmf_radius:
+        disp, valid = answer, torch.ones_like(valid)
     return StereoOutput(disp.to(left.dtype), valid, uncertainty=unc.to(left.dtype),
-                        confidence=(1.0 - unc).to(left.dtype), extras={k: v.to(left.dtype) for k, v in mix.items()})
+                        confidence=(1.0 - unc).to(left.dtype), extras=extras)
 
 
 def _siamese_cost(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint, backend: str = "torch",

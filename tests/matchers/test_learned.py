@@ -155,6 +155,47 @@ def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagree
         match("smd", left, right, 24, checkpoint=ckpt, lr_check=True, lr_uncertainty="max")
 
 
+@pytest.mark.skipif(not matchers.weights_available("smd"), reason="shipped smd weights not installed")
+@pytest.mark.parametrize("upsample", [1.0, 2.0])
+def test_smd_weighted_median_filters_the_filled_mode_and_scores_the_filtered_answer(upsample):
+    """``smd(wmf_radius=R)``: the mode with the check's rejections filled by the shared rule, through the weighted
+    median with radius, stride and step threshold in input pixels (``upsample`` times them on the output grid,
+    guided by the left image resized to it); every pixel valid; the uncertainty is the mixture's probability that
+    the filtered answer is off by more than 2 px (``lr_uncertainty="one"``: 1 where the check rejected); the check's
+    validity and the mode kept in the extras; a bad option is a one-line error naming it. Shipped smd.pt on a data_gen
+    render, so the map has depth edges for the filter to move."""
+    import torch.nn.functional as F
+
+    import data_gen
+    from stereonet.matchers.learned import SMD_ERROR_TAU
+    from stereonet.models.smd import MixtureParams, error_probability
+    from stereonet.select.fill import fill_occlusions
+    from stereonet.select.filters import weighted_median_filter
+
+    item = data_gen.SyntheticStereo(1, seed=12, difficulty=2, height=64, width=128)[0]
+    left, right, md = item["left"][None], item["right"][None], item["max_disp"]
+    bare = match("smd", left, right, md, upsample=upsample)
+    out = match("smd", left, right, md, upsample=upsample, wmf_radius=3, wmf_stride=2)
+    h, w = bare.disparity.shape[-2:]
+    guide = left if upsample == 1 else F.interpolate(left, size=(h, w), mode="bilinear", align_corners=False)
+    radius = round(3 * upsample)
+    expected = weighted_median_filter(fill_occlusions(bare.disparity, bare.valid), guide, radius=radius,
+                                      sigma_color=0.2, stride=min(round(2 * upsample), radius), jump=upsample)
+    assert torch.equal(out.disparity, expected) and out.valid.all()
+    assert not torch.equal(expected, fill_occlusions(bare.disparity, bare.valid))  # the filter moved pixels
+    assert torch.equal(out.extras["lr_consistent"], bare.valid) and torch.equal(out.extras["unfiltered"],
+                                                                                bare.disparity)
+    mix = MixtureParams(**{k: bare.extras[k] for k in ("mu1", "mu2", "b1", "b2", "pi")})
+    assert torch.allclose(out.uncertainty, error_probability(mix, expected, SMD_ERROR_TAU))
+    assert torch.equal(out.confidence, 1 - out.uncertainty)
+    one = match("smd", left, right, md, upsample=upsample, wmf_radius=3, wmf_stride=2, lr_uncertainty="one")
+    assert torch.equal(one.disparity, out.disparity)
+    assert (~bare.valid).any() and (one.uncertainty[~bare.valid] == 1).all()
+    assert torch.equal(one.uncertainty[bare.valid], out.uncertainty[bare.valid])
+    with pytest.raises(StereoInputError, match="wmf_radius: expected an integer >= 0"):
+        match("smd", left, right, md, wmf_radius=1.5)
+
+
 @pytest.mark.skipif(not matchers.weights_available("dispnet"), reason="shipped dispnet weights not installed")
 def test_dispnet_lr_check_finds_the_occlusions_of_a_render():
     """With the shipped dispnet.pt on a data_gen render, the left-right check rejects most of the ground truth's
