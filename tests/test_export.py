@@ -120,8 +120,8 @@ def test_smd_head_with_context_exports_at_any_size(cones, tmp_path, threads):
 
 
 def test_torch_backend_is_the_plain_network(cones, threads):
-    """backend='torch' runs the network exactly as predict_disparity / predict_smd do (dispnet's map before its
-    weighted median, which is not part of the network)."""
+    """backend='torch' runs the network exactly as predict_disparity / predict_smd do (dispnet's and smd's maps
+    before their weighted median, which is not part of the network)."""
     from stereonet.matchers.learned import load_network
     from stereonet.models.dispnet import predict_disparity
     from stereonet.models.smd import MixtureParams, error_probability, predict_smd
@@ -130,13 +130,14 @@ def test_torch_backend_is_the_plain_network(cones, threads):
     out = matchers.match("dispnet", left, right, MAX_DISP)  # the network's map before the check's fill and the filter
     assert torch.equal(out.extras["unfiltered"],
                        predict_disparity(load_network("dispnet"), left, right).clamp(0, MAX_DISP))
-    out = matchers.match("smd", left, right, MAX_DISP)
+    out = matchers.match("smd", left, right, MAX_DISP, wmf_radius=0)  # the head's mode, before the weighted median
     disp, _, mix = predict_smd(load_network("smd"), left, right, with_mixture=True)
     disp = disp.clamp(0, MAX_DISP)
     assert torch.equal(out.disparity, disp)
     # the head's own probability where the left-right check passes (rejected pixels: the fill's, tested elsewhere)
     assert torch.equal(out.uncertainty[out.valid], error_probability(MixtureParams(**mix), disp, 2.0)[out.valid])
     assert out.valid.float().mean() > 0.5
+    assert torch.equal(matchers.match("smd", left, right, MAX_DISP).extras["unfiltered"], disp)  # the default
 
 
 def test_onnx_without_file_exports_in_memory(cones, onnx_files, threads):

@@ -29,7 +29,7 @@ def sgm_lr(left, right, max_disp, **options):
 
 register("sgm-lr", kind="classical", description="sgm ranked by left-right agreement (probe)")(sgm_lr)
 register("smd-nolr", kind="learned", description="smd without its left-right check, as recorded")(
-    lambda left, right, max_disp: matchers.match("smd", left, right, max_disp, lr_check=False))
+    lambda left, right, max_disp: matchers.match("smd", left, right, max_disp, lr_check=False, wmf_radius=0))
 specs = sys.argv[1].split(";") if len(sys.argv) > 1 else ["real"]
 ev = run_evaluation(["sgm", "sgm-lr", "smd-nolr"], expand_data_specs(",".join(specs)), fill=True, progress=False)
 print(format_table(ev.rows))

@@ -6,7 +6,8 @@ with / without its left-right check (``lr_check``, thirty-sixth session; docs/ex
 the check with rejected pixels at uncertainty 1 (``lr_uncertainty="one"``). ``dispnet-nowmf`` is ``dispnet`` with its
 check but without the weighted median after it (``wmf_radius=0``), as ``dispnet`` ran in the thirty-fifth and
 thirty-sixth sessions (the filter is its default since the thirty-seventh; docs/experiments/dispnet_wmf.txt);
-``dispnet-nolr`` is also without the filter."""
+``dispnet-nolr`` is also without the filter. The three ``smd-*`` variants run without the weighted median that is
+``smd``'s default since the thirty-seventh session (docs/experiments/smd_wmf.txt), as their recorded rows did."""
 import functools
 import json
 import os
@@ -22,8 +23,9 @@ matchers.register("dispnet-nolr", kind="learned", needs_weights=True,
                                                                                        wmf_radius=0))
 matchers.register("dispnet-nowmf", kind="learned", needs_weights=True,
                   description="dispnet without its weighted median")(functools.partial(dispnet_matcher, wmf_radius=0))
-for _name, _opts in (("smd-lr", {"lr_check": True}), ("smd-lr-one", {"lr_check": True, "lr_uncertainty": "one"}),
-                     ("smd-nolr", {"lr_check": False})):
+for _name, _opts in (("smd-lr", {"lr_check": True, "wmf_radius": 0}),
+                     ("smd-lr-one", {"lr_check": True, "lr_uncertainty": "one", "wmf_radius": 0}),
+                     ("smd-nolr", {"lr_check": False, "wmf_radius": 0})):
     matchers.register(_name, kind="learned", needs_weights=True,
                       description=f"smd with {_opts}")(functools.partial(smd_matcher, **_opts))
 

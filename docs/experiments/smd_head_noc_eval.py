@@ -9,6 +9,7 @@ import val_sets  # noqa: E402
 
 from stereonet.matchers.learned import smd_matcher  # noqa: E402
 
-val_sets.compare({"smd-shipped": (smd_matcher, {"checkpoint": "stereonet/weights/smd.pt"}),
-                  "smd-head-noc": (smd_matcher, {"checkpoint": "docs/experiments/weights/smd_head_noc.pt"})},
+val_sets.compare({"smd-shipped": (smd_matcher, {"checkpoint": "stereonet/weights/smd.pt", "wmf_radius": 0}),
+                  "smd-head-noc": (smd_matcher, {"checkpoint": "docs/experiments/weights/smd_head_noc.pt",
+                                                   "wmf_radius": 0})},
                  val_sets.expand(sys.argv[1]))

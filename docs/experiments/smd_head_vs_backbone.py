@@ -21,7 +21,7 @@ checked = "--lr-check" in sys.argv[1:]
 args = [a for a in sys.argv[1:] if a != "--lr-check"]
 smd_file = args[0] if len(args) > 1 else str(default_weights_path("smd"))
 specs = args[-1] if args else "real"
-head, backbone = ("smd", "dispnet-nowmf") if checked else ("smd-nolr", "dispnet-nolr")
+head, backbone = ("smd-lr", "dispnet-nowmf") if checked else ("smd-nolr", "dispnet-nolr")
 net, info = load_weights(smd_file, expected="smd")
 b = net.backbone
 # the backbone's own configuration (its matching too: a census backbone read as a learned-feature one would load the

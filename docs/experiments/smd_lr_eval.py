@@ -11,7 +11,7 @@ import val_sets  # noqa: E402
 
 from stereonet.matchers.learned import smd_matcher  # noqa: E402
 
-val_sets.compare({"smd-plain": (smd_matcher, {"lr_check": False}),
-                  "smd-lr": (smd_matcher, {"lr_check": True, "lr_uncertainty": "one"}),
-                  "smd-lr-fill": (smd_matcher, {"lr_check": True, "lr_uncertainty": "fill"})},
+val_sets.compare({"smd-plain": (smd_matcher, {"lr_check": False, "wmf_radius": 0}),
+                  "smd-lr": (smd_matcher, {"lr_check": True, "lr_uncertainty": "one", "wmf_radius": 0}),
+                  "smd-lr-fill": (smd_matcher, {"lr_check": True, "lr_uncertainty": "fill", "wmf_radius": 0})},
                  val_sets.expand(sys.argv[1]))

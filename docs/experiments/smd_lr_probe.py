@@ -12,10 +12,10 @@ from stereonet.select.lr_check import left_right_check  # noqa: E402
 
 
 def smd_lr(left, right, max_disp):
-    a = smd_matcher(left, right, max_disp, lr_check=False)
-    b = smd_matcher(right.flip(-1), left.flip(-1), max_disp, lr_check=False)
+    a = smd_matcher(left, right, max_disp, lr_check=False, wmf_radius=0)
+    b = smd_matcher(right.flip(-1), left.flip(-1), max_disp, lr_check=False, wmf_radius=0)
     a.valid = left_right_check(a.disparity, b.disparity.flip(-1))  # the one rule's 1 px
     return a
 
 
-val_sets.compare({"smd-plain": (smd_matcher, {"lr_check": False}), "smd-lr": (smd_lr, {})}, val_sets.expand(sys.argv[1]))
+val_sets.compare({"smd-plain": (smd_matcher, {"lr_check": False, "wmf_radius": 0}), "smd-lr": (smd_lr, {})}, val_sets.expand(sys.argv[1]))

@@ -27,7 +27,7 @@ def _half(left, right):
 
 def query2x(left, right, max_disp):
     sl, sr = _half(left, right)
-    out = matchers.match("smd", sl, sr, max(1, max_disp // 2), upsample=2.0, lr_check=False)
+    out = matchers.match("smd", sl, sr, max(1, max_disp // 2), upsample=2.0, lr_check=False, wmf_radius=0)
     h, w = left.shape[-2:]
     d = out.disparity
     if d.shape[-2:] != (h, w):  # odd sizes: one row/column of rounding
@@ -39,7 +39,7 @@ def query2x(left, right, max_disp):
 def upsampled(mode):
     def fn(left, right, max_disp):
         sl, sr = _half(left, right)
-        out = matchers.match("smd", sl, sr, max(1, max_disp // 2), lr_check=False)
+        out = matchers.match("smd", sl, sr, max(1, max_disp // 2), lr_check=False, wmf_radius=0)
         h, w = left.shape[-2:]
         ratio = w / out.disparity.shape[-1]
         kw = {} if mode == "nearest" else {"align_corners": False}
@@ -52,7 +52,7 @@ register("smd-half-query2x", kind="learned", description="exp")(query2x)
 register("smd-half-nearest", kind="learned", description="exp")(upsampled("nearest"))
 register("smd-half-bilinear", kind="learned", description="exp")(upsampled("bilinear"))
 register("smd-full", kind="learned", description="exp")(lambda left, right, max_disp: matchers.match(
-    "smd", left, right, max_disp, lr_check=False))
+    "smd", left, right, max_disp, lr_check=False, wmf_radius=0))
 methods = ["smd-full", "smd-half-query2x", "smd-half-nearest", "smd-half-bilinear"]
 specs = expand_data_specs(sys.argv[1] if len(sys.argv) > 1 else "real")
 ev = run_evaluation(methods, specs, fill=True, progress=False)

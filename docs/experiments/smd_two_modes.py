@@ -41,7 +41,7 @@ def items(spec):
 
 def main():
     torch.set_num_threads(2)
-    smd, dispnet = get_matcher("smd", lr_check=False), get_matcher("dispnet", lr_check=False, wmf_radius=0)  # disparity only
+    smd, dispnet = (get_matcher(m, lr_check=False, wmf_radius=0) for m in ("smd", "dispnet"))  # disparity only
     totals = {}
     for name, it in items(sys.argv[1]):
         left, right, md = it["left"][None].float(), it["right"][None].float(), int(it["max_disp"])

@@ -39,7 +39,7 @@ table = {}
 for spec, item in items(specs):
     left, right, max_disp = _batch(item["left"]).float(), _batch(item["right"]).float(), int(item["max_disp"])
     gt, gv = _batch(item["disparity"]).float(), _batch(item["valid"]).bool()
-    out = matchers.match("smd", left, right, max_disp, lr_check=False)  # the head as recorded (no check)
+    out = matchers.match("smd", left, right, max_disp, lr_check=False, wmf_radius=0)  # as recorded
     row = {k: sparsification_ause(out.disparity, gt, gv, uncertainty=u, pred_valid=out.valid)
            for k, u in candidates(out).items()}
     if sys.argv[1] == "real":

@@ -207,8 +207,8 @@ def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, chec
     mirrored, swapped pair (its left-referenced answer there, mirrored back, is the right view's map) and the
     pixels whose two answers disagree by more than the project's one left-right rule allows
     (:func:`~stereonet.select.lr_check.left_right_check` at its default 1 px, as ``sgm``'s) are rejected
-    (occlusions and mismatches). Then, unless ``wmf_radius`` is 0 (the default since the thirty-seventh session, by
-    a data_gen rule: docs/experiments/dispnet_wmf.txt), the rejected pixels are filled by the shared rule
+    (occlusions and mismatches). Then, with ``wmf_radius`` > 0 (9 by default since the thirty-seventh session, by a
+    data_gen rule: docs/experiments/dispnet_wmf.txt; 0 = off), the rejected pixels are filled by the shared rule
     (:func:`~stereonet.select.fill.fill_occlusions`, as ``eval.py --fill``) and the map goes through the
     image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`, radius ``wmf_radius``,
     ``wmf_sigma_color``, votes every ``wmf_stride`` px capped at the radius; ``sgm-refine``'s filter) against
@@ -247,10 +247,10 @@ SMD_ERROR_TAU = 2.0
 
 @register("smd", kind="learned", needs_weights=True,
           description="SMD-Nets-style bimodal Laplacian head on DispNet: sharp edges + uncertainty (weights/smd.pt) "
-                      "+ a left-right check")
+                      "+ a left-right check + an image-guided weighted median")
 def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoint: str | None = None,
                 upsample: float = 1.0, backend: str = "torch", onnx_model: str | None = None,
-                lr_check: bool = True, lr_uncertainty: str = "fill", wmf_radius: int = 0,
+                lr_check: bool = True, lr_uncertainty: str = "fill", wmf_radius: int = WMF_RADIUS,
                 wmf_sigma_color: float = WMF_SIGMA_COLOR, wmf_stride: int = WMF_STRIDE) -> StereoOutput:
     """Mode of the mixture on a grid of ``upsample`` times the input size (default 1, values in pixels of
     that grid), clamped to [0, max_disp * upsample]; ``uncertainty`` = the probability under the predicted
@@ -265,8 +265,9 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
     the mixture's probability that the shared fill's answer there
     (:func:`~stereonet.select.fill.fill_occlusions`, what ``--fill`` outputs) is off by more than 2 px, so the
     uncertainty describes the answer that is output; ``"one"`` uncertainty 1 (confidence 0, as ``sgm`` scores its
-    rejected pixels; negative on data_gen, docs/experiments/smd_lr.txt). ``wmf_radius`` > 0 (off by default;
-    docs/experiments/smd_wmf.txt): the map, its rejected pixels filled by the shared rule, then goes through
+    rejected pixels; negative on data_gen, docs/experiments/smd_lr.txt). With ``wmf_radius`` > 0 (9 by default
+    since the thirty-seventh session, by a data_gen rule: docs/experiments/smd_wmf.txt; 0 = off) the mode, its
+    rejected pixels filled by the shared rule, then goes through
     ``dispnet``'s image-guided weighted median (:func:`~stereonet.select.filters.weighted_median_filter`; radius,
     stride and the 1 px step that marks a discontinuity in input pixels, so ``upsample`` times them on the output
     grid, guided by the left image resized bilinearly to that grid): every pixel valid, the uncertainty the

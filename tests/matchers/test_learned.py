@@ -47,7 +47,8 @@ def test_output_contract_odd_size(weights, name):
     if name == "smd":
         assert out.uncertainty is not None and ((out.uncertainty >= 0) & (out.uncertainty <= 1)).all()
         assert torch.equal(out.confidence, 1 - out.uncertainty)
-        assert set(out.extras) == {"mu1", "mu2", "b1", "b2", "pi"}
+        assert set(out.extras) == {"mu1", "mu2", "b1", "b2", "pi", "lr_consistent", "unfiltered"}
+        assert out.valid.all()  # the default fills the check's rejections and filters
     if name == "siamese-sgm":
         assert out.valid.all() and out.extras["lr_consistent"].dtype == torch.bool
 
@@ -117,7 +118,8 @@ def test_dispnet_default_fills_the_check_then_filters_with_the_weighted_median(w
 
 @pytest.mark.parametrize("upsample", [1.0, 2.0])
 def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagrees_with(weights, upsample):
-    """``smd`` checks by default (``lr_check=True``): the same disparity and extras as without; ``valid`` is the one left-right rule against
+    """``smd`` checks by default (``lr_check=True``; here without its weighted median): the same disparity and extras
+    as without; ``valid`` is the one left-right rule against
     the mirrored, swapped pair's answer at a tolerance of 1 input pixel (``upsample`` pixels of the output grid);
     accepted pixels keep the head's uncertainty, rejected ones get the mixture's probability that the shared fill's
     answer is off by more than 2 px (``lr_uncertainty="one"``: 1); bad values are one-line errors naming the option
@@ -130,12 +132,12 @@ def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagree
     torch.manual_seed(2)
     left, right = torch.rand(1, 3, 37, 70), torch.rand(1, 3, 37, 70)
     ckpt = str(weights["smd"])
-    plain = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=False)
-    checked = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample)  # the default checks
+    plain = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=False, wmf_radius=0)
+    checked = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, wmf_radius=0)  # the default checks
     assert torch.equal(checked.disparity, plain.disparity) and plain.valid.all()
     assert all(torch.equal(checked.extras[k], v) for k, v in plain.extras.items())
     mirrored = match("smd", right.flip(-1), left.flip(-1), 24, checkpoint=ckpt, upsample=upsample,
-                     lr_check=False).disparity.flip(-1)
+                     lr_check=False, wmf_radius=0).disparity.flip(-1)
     assert torch.equal(checked.valid, left_right_check(checked.disparity, mirrored, LR_TOL * upsample))
     assert 0 < checked.valid.float().mean() < 1
     assert torch.equal(checked.uncertainty[checked.valid], plain.uncertainty[checked.valid])
@@ -145,7 +147,8 @@ def test_smd_lr_check_rejects_and_distrusts_the_pixels_its_mirrored_run_disagree
     expected = error_probability(mix, fill_occlusions(checked.disparity, checked.valid), SMD_ERROR_TAU)
     assert torch.allclose(checked.uncertainty[~checked.valid], expected[~checked.valid])
     assert not torch.allclose(expected[~checked.valid], plain.uncertainty[~checked.valid])  # the fill's, not the head's
-    one = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=True, lr_uncertainty="one")
+    one = match("smd", left, right, 24, checkpoint=ckpt, upsample=upsample, lr_check=True, lr_uncertainty="one",
+                wmf_radius=0)
     assert torch.equal(one.valid, checked.valid)
     assert torch.equal(one.uncertainty[one.valid], checked.uncertainty[one.valid])
     assert (one.uncertainty[~one.valid] == 1).all() and (one.confidence[~one.valid] == 0).all()
@@ -172,14 +175,21 @@ def test_smd_weighted_median_filters_the_filled_mode_and_scores_the_filtered_ans
     from stereonet.select.fill import fill_occlusions
     from stereonet.select.filters import weighted_median_filter
 
+    def guide_of(image, disp):
+        h, w = disp.shape[-2:]
+        return image if upsample == 1 else F.interpolate(image, size=(h, w), mode="bilinear", align_corners=False)
+
     item = data_gen.SyntheticStereo(1, seed=12, difficulty=2, height=64, width=128)[0]
     left, right, md = item["left"][None], item["right"][None], item["max_disp"]
-    bare = match("smd", left, right, md, upsample=upsample)
+    bare = match("smd", left, right, md, upsample=upsample, wmf_radius=0)
     out = match("smd", left, right, md, upsample=upsample, wmf_radius=3, wmf_stride=2)
-    h, w = bare.disparity.shape[-2:]
-    guide = left if upsample == 1 else F.interpolate(left, size=(h, w), mode="bilinear", align_corners=False)
+    default = match("smd", left, right, md, upsample=upsample)  # radius 9, stride 2 since the thirty-seventh session
+    assert torch.equal(default.disparity, weighted_median_filter(
+        fill_occlusions(bare.disparity, bare.valid), guide_of(left, bare.disparity), radius=round(9 * upsample),
+        sigma_color=0.2, stride=round(2 * upsample), jump=upsample))
     radius = round(3 * upsample)
-    expected = weighted_median_filter(fill_occlusions(bare.disparity, bare.valid), guide, radius=radius,
+    expected = weighted_median_filter(fill_occlusions(bare.disparity, bare.valid), guide_of(left, bare.disparity),
+                                      radius=radius,
                                       sigma_color=0.2, stride=min(round(2 * upsample), radius), jump=upsample)
     assert torch.equal(out.disparity, expected) and out.valid.all()
     assert not torch.equal(expected, fill_occlusions(bare.disparity, bare.valid))  # the filter moved pixels
