@@ -6,9 +6,10 @@ through the ``dispnet`` matcher (same padding and range handling as ``smd``); bo
 check that each runs by default (``smd-nolr`` and ``dispnet-nolr`` of real_pairs.py); with ``--lr-check`` both as they
 run by default (each with its left-right check, then the shared fill: the same post-processing on both sides; the
 backbone without the weighted median that is ``dispnet``'s default since the thirty-seventh session, ``dispnet-nowmf``,
-since ``smd`` has none).
+since ``smd`` had none then); with ``--now`` both as they run by default since the thirty-seventh session (check, fill,
+weighted median on both sides).
 
-    python docs/experiments/smd_head_vs_backbone.py [--lr-check] [WEIGHTS.pt] "real;synthetic:32"
+    python docs/experiments/smd_head_vs_backbone.py [--lr-check | --now] [WEIGHTS.pt] "real;synthetic:32"
 """
 import os
 import subprocess
@@ -18,10 +19,11 @@ import tempfile
 from stereonet.models.weights import default_weights_path, load_weights, save_weights
 
 checked = "--lr-check" in sys.argv[1:]
-args = [a for a in sys.argv[1:] if a != "--lr-check"]
+now = "--now" in sys.argv[1:]
+args = [a for a in sys.argv[1:] if a not in ("--lr-check", "--now")]
 smd_file = args[0] if len(args) > 1 else str(default_weights_path("smd"))
 specs = args[-1] if args else "real"
-head, backbone = ("smd-lr", "dispnet-nowmf") if checked else ("smd-nolr", "dispnet-nolr")
+head, backbone = ("smd", "dispnet") if now else ("smd-lr", "dispnet-nowmf") if checked else ("smd-nolr", "dispnet-nolr")
 net, info = load_weights(smd_file, expected="smd")
 b = net.backbone
 # the backbone's own configuration (its matching too: a census backbone read as a learned-feature one would load the
