@@ -48,5 +48,6 @@ def test_wheel_installs_and_runs_a_learned_matcher(tmp_path):
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     info = json.loads((work / "out" / "info.json").read_text())
-    # dispnet fills the pixels its left-right check rejects and filters the map itself: every pixel valid
-    assert info["method"] == "dispnet" and info["density_before_fill"] == info["density"] == 100
+    # dispnet fills the pixels its left-right check rejects and filters the map itself: --fill adds nothing (infer.py
+    # still leaves out the pixels whose match falls outside the right image's content)
+    assert info["method"] == "dispnet" and info["density_before_fill"] == info["density"] > 90
