@@ -53,7 +53,8 @@ mixture), ``val2ay``/``val4ay`` on seeds 5295/5296 (smd's head on the new dispne
 ``wb2m``/``wb4m`` on seeds 5297-5300 (the thirty-seventh session's weighted median after dispnet), ``val2ba``/``val4ba``
 and ``wb2n``/``wb4n`` on seeds 5301-5304 (the same after smd), ``val2bb``/``val4bb`` on seeds 5305/5306 (dispnet
 trained on anti-aliased renders), ``val2bc``/``val4bc`` and ``wb2o``/``wb4o`` on seeds 5307-5310 (smd's head on
-the shipped dispnet.pt, tested again); any other spec as
+the shipped dispnet.pt, tested again), ``val2bd``/``val4bd``/``wb2p``/``wb4p`` and ``val2be``/``val4be``/``wb2q``/``wb4q``
+on seeds 5311-5318 (dispnet's weighted-median window: selection, confirmation); any other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
@@ -130,7 +131,11 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "wb2n": (12, 5303, 2, {"weak_background": 1.0}), "wb4n": (8, 5304, 4, {"weak_background": 1.0}),
         "val2bb": (12, 5305, 2), "val4bb": (8, 5306, 4),
         "val2bc": (12, 5307, 2), "val4bc": (8, 5308, 4),
-        "wb2o": (12, 5309, 2, {"weak_background": 1.0}), "wb4o": (8, 5310, 4, {"weak_background": 1.0})}
+        "wb2o": (12, 5309, 2, {"weak_background": 1.0}), "wb4o": (8, 5310, 4, {"weak_background": 1.0}),
+        "val2bd": (12, 5311, 2), "val4bd": (8, 5312, 4),
+        "wb2p": (12, 5313, 2, {"weak_background": 1.0}), "wb4p": (8, 5314, 4, {"weak_background": 1.0}),
+        "val2be": (12, 5315, 2), "val4be": (8, 5316, 4),
+        "wb2q": (12, 5317, 2, {"weak_background": 1.0}), "wb4q": (8, 5318, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
