@@ -54,7 +54,8 @@ mixture), ``val2ay``/``val4ay`` on seeds 5295/5296 (smd's head on the new dispne
 and ``wb2n``/``wb4n`` on seeds 5301-5304 (the same after smd), ``val2bb``/``val4bb`` on seeds 5305/5306 (dispnet
 trained on anti-aliased renders), ``val2bc``/``val4bc`` and ``wb2o``/``wb4o`` on seeds 5307-5310 (smd's head on
 the shipped dispnet.pt, tested again), ``val2bd``/``val4bd``/``wb2p``/``wb4p`` and ``val2be``/``val4be``/``wb2q``/``wb4q``
-on seeds 5311-5318 (dispnet's weighted-median window: selection, confirmation); any other spec as
+on seeds 5311-5318 (dispnet's weighted-median window: selection; the confirmation sets were never rendered); any
+other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
 import functools
