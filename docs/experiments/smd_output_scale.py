@@ -2,10 +2,12 @@
 - smd-half-query2x: the head queried on a grid 2x the input (upsample=2) -> back at full resolution;
 - smd-half-nearest / smd-half-bilinear: the same network at 1x, the disparity map upsampled 2x afterwards;
 - smd (full): the full-resolution pair at 1x (the reference the half-size runs try to reach).
-All without smd's left-right check (its default since the thirty-sixth session), as this table was recorded.
-Each scored at full resolution against the full-resolution ground truth (bad-2 after the shared fill, SEE).
+All without smd's left-right check (its default since the thirty-sixth session) and its weighted median (since the
+thirty-seventh), as this table was recorded; ``--now`` runs smd as it runs by default (check, fill, filter: every
+pixel valid). Each scored at full resolution against the full-resolution ground truth (bad-2 after the shared fill,
+SEE).
 
-    python docs/experiments/smd_output_scale.py [SPECS]     (default: real)
+    python docs/experiments/smd_output_scale.py [--now] [SPECS]     (default: real)
 """
 import statistics
 import sys
@@ -18,6 +20,10 @@ from stereonet.evaluation import expand_data_specs, run_evaluation
 from stereonet.matchers import register
 from stereonet.types import StereoOutput
 
+NOW = "--now" in sys.argv[1:]
+ARGS = [a for a in sys.argv[1:] if a != "--now"]
+OPTS = {} if NOW else {"lr_check": False, "wmf_radius": 0}  # as recorded, or as smd runs by default
+
 
 def _half(left, right):
     h, w = left.shape[-2:]
@@ -27,7 +33,7 @@ def _half(left, right):
 
 def query2x(left, right, max_disp):
     sl, sr = _half(left, right)
-    out = matchers.match("smd", sl, sr, max(1, max_disp // 2), upsample=2.0, lr_check=False, wmf_radius=0)
+    out = matchers.match("smd", sl, sr, max(1, max_disp // 2), upsample=2.0, **OPTS)
     h, w = left.shape[-2:]
     d = out.disparity
     if d.shape[-2:] != (h, w):  # odd sizes: one row/column of rounding
@@ -39,7 +45,7 @@ def query2x(left, right, max_disp):
 def upsampled(mode):
     def fn(left, right, max_disp):
         sl, sr = _half(left, right)
-        out = matchers.match("smd", sl, sr, max(1, max_disp // 2), lr_check=False, wmf_radius=0)
+        out = matchers.match("smd", sl, sr, max(1, max_disp // 2), **OPTS)
         h, w = left.shape[-2:]
         ratio = w / out.disparity.shape[-1]
         kw = {} if mode == "nearest" else {"align_corners": False}
@@ -52,9 +58,9 @@ register("smd-half-query2x", kind="learned", description="exp")(query2x)
 register("smd-half-nearest", kind="learned", description="exp")(upsampled("nearest"))
 register("smd-half-bilinear", kind="learned", description="exp")(upsampled("bilinear"))
 register("smd-full", kind="learned", description="exp")(lambda left, right, max_disp: matchers.match(
-    "smd", left, right, max_disp, lr_check=False, wmf_radius=0))
+    "smd", left, right, max_disp, **OPTS))
 methods = ["smd-full", "smd-half-query2x", "smd-half-nearest", "smd-half-bilinear"]
-specs = expand_data_specs(sys.argv[1] if len(sys.argv) > 1 else "real")
+specs = expand_data_specs(ARGS[0] if ARGS else "real")
 ev = run_evaluation(methods, specs, fill=True, progress=False)
 rows = {}
 for p in ev.pairs:
