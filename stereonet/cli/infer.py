@@ -60,6 +60,7 @@ VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 # most accurate there and among the fastest; the learned ones follow (used when their weights exist).
 PREFERRED = ("sgm", "siamese-sgm", "dispnet", "smd", "siamese", "opencv-sgbm")
 PREFILTER_METHODS = ("sgm", "siamese-census-sgm", "sgm-refine", "sgm-penalties")  # census matchers with `prefilter`
+WMF_METHODS = ("dispnet", "smd", "sgm-refine", "sgm")  # matchers with `wmf_radius` (tested to take it)
 MAX_DISP_CAP = 256
 MIN_MATCHES = 8
 MARGIN = 1.2  # automatic max_disp = largest match disparity * MARGIN + 4 px, rounded up to 16
@@ -637,6 +638,10 @@ def build_parser() -> OneLineParser:
     p.add_argument("--prefilter", choices=("vertical", "binomial"), default=None,
                    help="smooth the images the census cost reads (sgm, siamese-census-sgm, sgm-refine): for noisy "
                         "photos (low light, small sensors); a little worse on clean ones, so off by default")
+    p.add_argument("--wmf-radius", type=int, default=None, metavar="PX",
+                   help="radius of the image-guided weighted median that dispnet, smd and sgm-refine end with (default "
+                        "9; 0 = off: dispnet and smd then leave their left-right rejections to --fill); sgm applies it "
+                        "only when given (off by default)")
     p.add_argument("--no-align", action="store_true",
                    help="keep the right view as it is (by default a residual vertical offset of the rectified pair, "
                         "fitted to SIFT matches, is corrected when it reaches 0.25 px)")
@@ -722,6 +727,16 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
             raise StereoInputError(f"--prefilter: method {method!r} has no census pre-filter; use one of "
                                    f"{', '.join(PREFILTER_METHODS)}")
         options["prefilter"] = args.prefilter
+    if args.wmf_radius is not None:
+        import inspect
+
+        if args.wmf_radius < 0:
+            raise StereoInputError(f"--wmf-radius: expected an integer >= 0 (0 = no weighted median), "
+                                   f"got {args.wmf_radius}")
+        if "wmf_radius" not in inspect.signature(spec.fn).parameters:
+            raise StereoInputError(f"--wmf-radius: method {method!r} has no weighted median; use one of "
+                                   f"{', '.join(WMF_METHODS)}")
+        options["wmf_radius"] = args.wmf_radius
     calib = None
     if args.calib is not None:
         from stereonet.calibration import read_calibration

@@ -649,6 +649,37 @@ def test_prefilter_reaches_census_matchers_and_is_refused_elsewhere(pair_files, 
     assert code == 2 and "--prefilter" in one_line_error(err) and not (tmp_path / "bm").exists()
 
 
+def test_wmf_radius_reaches_the_matchers_that_filter_and_is_refused_elsewhere(pair_files, tmp_path, capsys):
+    """``--wmf-radius`` sets the weighted median of the matchers that have one: sgm's opt-in filter changes its map;
+    dispnet with 0 leaves its left-right rejections invalid (dense by default); a method without the
+    filter or a negative radius is a one-line error naming the option, nothing written."""
+    from stereonet.io import read_disparity
+
+    maps, infos = {}, {}
+    for name, extra in (("sgm", ["--method", "sgm"]), ("sgm9", ["--method", "sgm", "--wmf-radius", "9"]),
+                        ("dispnet", ["--method", "dispnet"]), ("dispnet0", ["--method", "dispnet", "--wmf-radius", "0"])):
+        code, err = run_main(capsys, *pair_files, "-o", tmp_path / name, "--max-disp", "16", *extra)
+        assert code == 0, err
+        maps[name] = read_disparity(tmp_path / name / "disparity.pfm")[0]
+        infos[name] = json.loads((tmp_path / name / "info.json").read_text())
+    assert not np.array_equal(np.nan_to_num(maps["sgm"], posinf=0), np.nan_to_num(maps["sgm9"], posinf=0))
+    assert infos["dispnet0"]["density"] < infos["dispnet"]["density"]
+    for extra, message in ((["--method", "opencv-bm", "--wmf-radius", "5"], "has no weighted median"),
+                           (["--method", "sgm", "--wmf-radius", "-1"], "expected an integer >= 0")):
+        code, err = run_main(capsys, *pair_files, "-o", tmp_path / "bad", *extra)
+        line = one_line_error(err)
+        assert code == 2 and "--wmf-radius" in line and message in line and not (tmp_path / "bad").exists()
+
+
+def test_every_wmf_method_takes_the_option():
+    import inspect
+
+    from stereonet import matchers
+
+    assert {m for m in matchers.available() if "wmf_radius" in inspect.signature(matchers.spec(m).fn).parameters} \
+        == set(infer.WMF_METHODS)
+
+
 def test_every_prefilter_method_takes_the_option():
     from stereonet import matchers
 
