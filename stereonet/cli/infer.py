@@ -36,6 +36,7 @@ A residual vertical offset of the (rectified) pair, fitted as a plane to its SIF
 from __future__ import annotations
 
 import glob
+import inspect
 import json
 import math
 import shutil
@@ -716,8 +717,6 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
     elif spec.needs_weights and "onnx_model" not in options and not weights_available(method):
         raise FileNotFoundError(f"--method {method}: its weights are missing (pass --checkpoint CKPT)")
     if args.output_scale != 1.0:
-        import inspect
-
         if "upsample" not in inspect.signature(spec.fn).parameters:
             raise StereoInputError(f"--output-scale: method {method!r} answers on the input grid only; use a method "
                                    "with a continuous output head (smd)")
@@ -728,8 +727,6 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
                                    f"{', '.join(PREFILTER_METHODS)}")
         options["prefilter"] = args.prefilter
     if args.wmf_radius is not None:
-        import inspect
-
         if args.wmf_radius < 0:
             raise StereoInputError(f"--wmf-radius: expected an integer >= 0 (0 = no weighted median), "
                                    f"got {args.wmf_radius}")

@@ -41,6 +41,7 @@ from stereonet.select.filters import (
     WMF_SIGMA_COLOR,
     WMF_STRIDE,
     check_wmf_options,
+    filled_weighted_median,
     weighted_median_filter,
 )
 from stereonet.select.lr_check import LR_TOL, left_right_check
@@ -236,8 +237,7 @@ def dispnet_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, chec
         valid = left_right_check(disp, disp_right)
     if not wmf_radius:
         return StereoOutput(disp, valid)
-    filtered = weighted_median_filter(fill_occlusions(disp, valid), left, radius=wmf_radius,
-                                      sigma_color=wmf_sigma_color, stride=min(wmf_stride, wmf_radius))
+    filtered = filled_weighted_median(disp, valid, left, wmf_radius, wmf_sigma_color, wmf_stride)
     return StereoOutput(filtered, torch.ones_like(valid), extras={"lr_consistent": valid, "unfiltered": disp})
 
 

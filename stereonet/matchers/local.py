@@ -56,9 +56,9 @@ from stereonet.select.filters import (
     WMF_SIGMA_COLOR,
     WMF_STRIDE,
     check_wmf_options,
+    filled_weighted_median,
     median_filter,
     speckle_filter,
-    weighted_median_filter,
 )
 from stereonet.select.wta import (
     block_select_disparity,
@@ -279,8 +279,7 @@ def sgm(left: torch.Tensor, right: torch.Tensor, max_disp: int, wmf_radius: int 
     out = sgm_core(left, right, max_disp, **options)
     if not wmf_radius:
         return out
-    disp = weighted_median_filter(fill_occlusions(out.disparity, out.valid), left, radius=wmf_radius,
-                                  sigma_color=wmf_sigma_color, stride=min(wmf_stride, wmf_radius))
+    disp = filled_weighted_median(out.disparity, out.valid, left, wmf_radius, wmf_sigma_color, wmf_stride)
     return StereoOutput(disp, torch.ones_like(out.valid), confidence=out.confidence, cost_volume=out.cost_volume,
                         extras={**out.extras, "lr_consistent": out.valid})
 

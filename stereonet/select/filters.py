@@ -15,6 +15,7 @@ from stereonet.kernels.filters import (
     speckle_kernel,
     weighted_median_kernel,
 )
+from stereonet.select.fill import fill_occlusions
 
 
 def median_filter(disp: torch.Tensor, size: int = 3, valid: torch.Tensor | None = None,
@@ -185,6 +186,15 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
                         for b in range(d.shape[0])])[:, None]
         return torch.from_numpy(out).to(disp.device, disp.dtype)
     return _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump, stride, band)
+
+
+def filled_weighted_median(disp: torch.Tensor, valid: torch.Tensor, guide: torch.Tensor, radius: int,
+                           sigma_color: float = WMF_SIGMA_COLOR, stride: int = WMF_STRIDE) -> torch.Tensor:
+    """The matchers' last step against foreground fattening (``sgm(wmf_radius=)``, ``dispnet``): the invalid pixels
+    filled by the shared rule (:func:`~stereonet.select.fill.fill_occlusions`, as ``eval.py --fill``), then
+    :func:`weighted_median_filter` guided by ``guide`` with votes every ``stride`` px, capped at the radius."""
+    return weighted_median_filter(fill_occlusions(disp, valid), guide, radius=radius, sigma_color=sigma_color,
+                                  stride=min(stride, radius))
 
 
 def _weighted_median_torch(disp, guide, valid, radius, sigma_color, sigma_space, jump, stride=1, band=None, rows=None):
