@@ -98,6 +98,15 @@ def sample_max_disp(source: str, difficulty: int, width: int, disparity_range: i
     return int(torch.randint(low, high + 1, (1,), generator=generator))
 
 
+def _default_max_disp(source: str, difficulty: int, width: int) -> int | None:
+    """The difficulty's own disparity range at ``width`` (data_gen's default), None for other sources."""
+    if source != "data_gen":
+        return None
+    import data_gen
+
+    return int(data_gen.default_max_disp(difficulty, width))
+
+
 def max_difficulty(source: str) -> int:
     if source == "data_gen":
         import data_gen
@@ -245,6 +254,8 @@ class PooledCurriculumStream(IterableDataset):
     DataLoader worker, so ranks and workers never repeat each other's pairs (pair index
     ``(counter * workers + worker) * world_size + rank``) and a resumed run does not replay the first
     pairs. With one process (rank 0 of 1) the stream is the same as before ranks were folded in.
+    With ``render_scale`` > 1 the pairs are rendered that many times larger (their disparity range drawn for
+    ``width``) and every draw is a random ``height`` x ``width`` window of one (:func:`random_crop`).
     """
 
     def __init__(self, source: str, seed: int, height: int, width: int, pool_size: int, reuse: int,
@@ -252,8 +263,9 @@ class PooledCurriculumStream(IterableDataset):
                  rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0,
                  extra: Dataset | None = None, extra_ratio: float = 0.0, vertical_warp: float = 0.0,
                  shared_material: float = 0.0, drop_textures: tuple[str, ...] = (),
-                 weak_background: float = 0.0) -> None:
+                 weak_background: float = 0.0, render_scale: int = 1) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
+        self.render_scale = int(render_scale)
         self.shared_material, self.weak_background = float(shared_material), float(weak_background)
         self.drop_textures = tuple(drop_textures)
         self.extra, self.extra_ratio = extra, float(extra_ratio) if extra is not None else 0.0
@@ -277,7 +289,11 @@ class PooledCurriculumStream(IterableDataset):
                 index = (counter * nworkers + wid) * self.world_size + self.rank
                 level = int(self.difficulty.value)
                 max_disp = sample_max_disp(self.source, level, self.width, self.disparity_range, g)
-                ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height, self.width,
+                scale = self.render_scale
+                if scale > 1 and max_disp is None:  # the crop's range in pixels, not that of the larger render
+                    max_disp = _default_max_disp(self.source, level, self.width)
+                ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height * scale,
+                                   self.width * scale,
                                    self.supersample, max_disp, self.shared_material, self.drop_textures,
                                    self.weak_background)
                 pool.append(ds[index])
@@ -290,6 +306,8 @@ class PooledCurriculumStream(IterableDataset):
                     item = {**item, "left": item["left"].expand(3, -1, -1), "right": item["right"].expand(3, -1, -1)}
             else:
                 item = pool[int(torch.randint(len(pool), (1,), generator=g))]
+                if self.render_scale > 1:  # a new window of the larger render at every draw
+                    item = random_crop(item, self.height, self.width, g)
             if self.augment:
                 if float(torch.rand(1, generator=g)) < 0.5:
                     item = swap_flip(item)
@@ -368,6 +386,12 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             (``data_gen.render_pair``'s option: objects in front of weakly textured walls, where window matchers
             fatten the foreground, as at most depth edges of photos; 0 = off, the default). Validation pairs are
             rendered without it.
+        render_scale: training pairs are rendered at ``render_scale`` times ``height`` x ``width`` (the
+            disparity range still drawn for ``width``: the same disparities in pixels) and every draw from the pool
+            takes a random ``height`` x ``width`` window of it (:func:`random_crop`): surfaces and textures that
+            many times larger in pixels, the disparities a smaller share of the view, as in camera images of 375 px
+            and more; 1 (the default) renders at the training size, the same pairs as before the option existed.
+            Validation pairs are rendered at their own size.
     """
 
     def __init__(self, source: str = "data_gen", height: int = 128, width: int = 256, batch_size: int = 4,
@@ -378,7 +402,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0, train: str | None = None,
                  train_ratio: float = 0.5, vertical_warp: float = 0.0, val_vertical_warp: float = 0.0,
                  shared_material: float = 0.0, drop_textures: list[str] | None = None,
-                 weak_background: float = 0.0) -> None:
+                 weak_background: float = 0.0, render_scale: int = 1) -> None:
         super().__init__()
         self.save_hyperparameters()
         from stereonet.checks import StereoInputError
@@ -396,6 +420,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         for name, value in (("shared_material", shared_material), ("weak_background", weak_background)):
             if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
                 raise StereoInputError(f"--data.{name}: expected a probability in [0, 1], got {value!r}")
+        if isinstance(render_scale, bool) or not isinstance(render_scale, int) or render_scale < 1:
+            raise StereoInputError(f"--data.render_scale: expected an integer >= 1, got {render_scale!r}")
         if not 0.0 < train_ratio <= 1.0:
             raise StereoInputError(f"--data.train_ratio: expected a share in (0, 1], got {train_ratio}")
         self.train_extra = open_training_spec(train, height, width) if train else None
@@ -445,7 +471,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                         vertical_jitter=hp.vertical_jitter, extra=self.train_extra,
                                         extra_ratio=hp.train_ratio, vertical_warp=hp.vertical_warp,
                                         shared_material=hp.shared_material, drop_textures=self.drop_textures,
-                                        weak_background=hp.weak_background)
+                                        weak_background=hp.weak_background, render_scale=hp.render_scale)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

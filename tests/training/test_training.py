@@ -588,6 +588,53 @@ def test_render_probability_reaches_the_rendered_training_pairs_only(option):
         SyntheticStereoDataModule(source="data_gen", **{option: 1.5})
 
 
+def test_render_scale_renders_larger_and_draws_windows(monkeypatch):
+    """``--data.render_scale``: training pairs are rendered that many times larger, with the disparity range drawn
+    for the training width, and each draw is a training-size window whose pixels matching outside the window are
+    invalid; validation pairs keep their size; 1 renders at the training size; a bad value is one line."""
+    import data_gen
+    from stereonet.checks import StereoInputError
+    from stereonet.training.data import SyntheticStereoDataModule
+
+    rendered = []
+    real_init = data_gen.SyntheticStereo.__init__
+
+    def spy(self, *args, **kwargs):
+        rendered.append((kwargs.get("height"), kwargs.get("width"), kwargs.get("max_disp")))
+        real_init(self, *args, **kwargs)
+
+    monkeypatch.setattr(data_gen.SyntheticStereo, "__init__", spy)
+
+    def items(scale, n=3):
+        dm = SyntheticStereoDataModule(source="data_gen", height=32, width=64, batch_size=1, pool_size=2, reuse=1,
+                                       val_pairs=1, supersample=1, augment=False, disparity_range=24,
+                                       render_scale=scale)
+        dm.setup("fit")
+        dm.set_progress(1.0)
+        it = iter(dm.train_dataloader())
+        return [next(it) for _ in range(n)], dm.val_items[0]
+
+    rendered.clear()
+    (batches, val) = items(2)
+    train_renders = rendered[1:]  # the first is the validation pair
+    assert rendered[0][:2] == (32, 64) and val["left"].shape[-2:] == (32, 64)
+    assert train_renders and all(r[:2] == (64, 128) for r in train_renders)
+    assert all(r[2] is not None and r[2] <= 24 for r in train_renders)  # the crop width's range, in pixels
+    xs = torch.arange(64, dtype=torch.float32)
+    for b in batches:
+        assert b["left"].shape[-2:] == (32, 64) and b["disparity"].shape[-2:] == (32, 64)
+        assert bool(((xs - b["disparity"] >= 0) | ~b["valid"]).all())  # matches inside the window
+        assert bool((b["nonoccluded"] <= b["valid"]).all())
+    plain = items(1)[0]
+    monkeypatch.setattr(data_gen.SyntheticStereo, "__init__", real_init)
+    again = items(1)[0]
+    for a, c in zip(plain, again):
+        torch.testing.assert_close(a["left"], c["left"])
+    for bad in (0, 1.5, True):
+        with pytest.raises(StereoInputError, match="--data.render_scale"):
+            SyntheticStereoDataModule(source="data_gen", render_scale=bad)
+
+
 def test_drop_textures_reaches_the_rendered_training_pairs_only(monkeypatch):
     """``--data.drop_textures``: training pairs are rendered without those texture kinds (data_gen's ``textures``
     option: the level's mix less those kinds), validation pairs with the levels' mixes; an unknown kind, or one that
