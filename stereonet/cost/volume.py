@@ -161,19 +161,15 @@ def _chw(img: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(img.detach().to("cpu", torch.float32).numpy())
 
 
-def _box_np(img: np.ndarray, window: int) -> np.ndarray:
-    """box_mean of a planar (C, H, W) or (H, W) float32 array with the engine's numba box (a new array)."""
-    from stereonet.kernels.block import box_mean_planes
+def _box_np(img: np.ndarray, window: int, op: int = 0, eps: float = 0.0) -> np.ndarray:
+    """box_mean of a planar (C, H, W) or (H, W) float32 array with the engine's numba box (a new array); ``op``
+    :data:`~stereonet.kernels.block.BOX_ZERO_MEAN` gives ``img - mean`` and ``BOX_SCALED`` ``img / (mean + eps)``
+    in the same pass (:func:`~stereonet.kernels.block.box_planes`)."""
+    from stereonet.kernels.block import box_planes
 
     planes = np.ascontiguousarray(img[None] if img.ndim == 2 else img, dtype=np.float32)
-    out = box_mean_planes(planes, window)
+    out = box_planes(planes, window, op, np.float32(eps))
     return out[0] if img.ndim == 2 else out
-
-
-def _inv_sd(var: np.ndarray) -> np.ndarray:
-    """1 / sqrt(var) where ``var > NCC_MIN_VARIANCE``, else 0 (NCC defined as 0 there), float32."""
-    ok = var > np.float32(NCC_MIN_VARIANCE)
-    return np.where(ok, np.float32(1.0) / np.sqrt(np.where(ok, var, np.float32(1.0))), np.float32(0.0)).astype(np.float32)
 
 
 _NO_CODES = np.zeros((1, 1, 1), np.uint64)
@@ -209,19 +205,18 @@ def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window
     elif cost == "ncc":
         gl, gr = grey_numpy(left), grey_numpy(right)
         kind, li, ri, post = E.KIND_PROD, gl[None], gr[None], E.POST_NCC
-        mu_l, mu_r = _box_np(gl, window), _box_np(gr, window)
-        var_l = np.maximum(_box_np(gl * gl, window) - mu_l * mu_l, np.float32(0))
-        var_r = np.maximum(_box_np(gr * gr, window) - mu_r * mu_r, np.float32(0))
-        maps = (mu_l, _inv_sd(var_l), mu_r, _inv_sd(var_r))
+        # box(g), box(g * g), the clamped variance and its inverse root (0 at or below NCC_MIN_VARIANCE: NCC defined
+        # as 0 there) in two numba passes per image
+        floor = np.float32(NCC_MIN_VARIANCE)
+        maps = (*E.ncc_window_stats(gl, window, floor), *E.ncc_window_stats(gr, window, floor))
     else:
         li, ri = _chw(left), _chw(right)
         squared = cost == "ssd" or (cost == "adaptive" and base == "ssd")
         kind = E.KIND_CENSUS_AD if cost == "census_ad" else (E.KIND_SQ if squared else E.KIND_ABS)
-        if cost == "zsad":
-            li, ri = li - _box_np(li, window), ri - _box_np(ri, window)
-        elif cost == "lssad":
-            li = li / (_box_np(li, window) + np.float32(LSSAD_EPS))
-            ri = ri / (_box_np(ri, window) + np.float32(LSSAD_EPS))
+        if cost == "zsad":  # li - box mean, in one pass
+            li, ri = _box_np(li, window, E.BOX_ZERO_MEAN), _box_np(ri, window, E.BOX_ZERO_MEAN)
+        elif cost == "lssad":  # li / (box mean + eps), in one pass
+            li, ri = _box_np(li, window, E.BOX_SCALED, LSSAD_EPS), _box_np(ri, window, E.BOX_SCALED, LSSAD_EPS)
         if cost == "adaptive":
             post, post_window = (E.POST_MULTIWINDOW if mode == "multiwindow" else E.POST_SHIFTABLE), window
     box = 1 if cost == "ad" else window

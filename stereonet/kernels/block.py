@@ -370,11 +370,16 @@ def _row_max(row, acc):
     return m
 
 
+BOX_MEAN, BOX_ZERO_MEAN, BOX_SCALED = 0, 1, 2
+
+
 @numba.njit(parallel=True, cache=True, fastmath=False)
-def box_mean_planes(img, window):
-    """Mean over the in-image part of the ``window`` x ``window`` square of every pixel of planar
-    ``img`` (C, H, W) float32 (a new array): the engine's own vertical running sums (float64 here, so
-    nothing drifts) and :func:`_box_row` along x. Rows run in blocks of :data:`ROW_BLOCK` (``prange``)."""
+def box_planes(img, window, op, eps):
+    """Per pixel of planar ``img`` (C, H, W) float32, with ``m`` the mean over the in-image part of its ``window``
+    x ``window`` square (the engine's own vertical running sums, float64 here so nothing drifts, and
+    :func:`_box_row` along x; rows in blocks of :data:`ROW_BLOCK`, ``prange``), a new float32 array of
+    ``m`` (``op`` = :data:`BOX_MEAN`), ``img - m`` (:data:`BOX_ZERO_MEAN`, ZSAD's input) or ``img / (m + eps)``
+    (:data:`BOX_SCALED`, LS-SAD's): each in float32, as numpy computes them from the mean, in one pass."""
     C, H, W = img.shape
     r = window // 2
     Wp = W + 2 * r
@@ -408,7 +413,39 @@ def box_mean_planes(img, window):
             for x in range(W):
                 dst[x] = np.float32(acc[x])
             _box_row(row, window, min(y + r, H - 1) - max(y - r, 0) + 1, pa, pb, inv, out[c, y:y + 1])
+            o = out[c, y]
+            src = plane[y]
+            if op == BOX_ZERO_MEAN:
+                for x in range(W):
+                    o[x] = src[x] - o[x]
+            elif op == BOX_SCALED:
+                for x in range(W):
+                    o[x] = src[x] / (o[x] + eps)
     return out
+
+
+@numba.njit(parallel=True, cache=True, fastmath=False)
+def ncc_window_stats(grey, window, min_variance):
+    """NCC's window statistics of a grey (H, W) float32 image, the same float32 values as numpy's composition
+    ``mu = box(g)``, ``var = maximum(box(g * g) - mu * mu, 0)``, ``isd = 1 / sqrt(var)`` where ``var >
+    min_variance`` else 0, in two passes (both box means in one :func:`box_planes` call). Returns (mu, isd)."""
+    H, W = grey.shape
+    planes = np.empty((2, H, W), np.float32)
+    for y in prange(H):
+        for x in range(W):
+            g = grey[y, x]
+            planes[0, y, x] = g
+            planes[1, y, x] = g * g
+    means = box_planes(planes, window, BOX_MEAN, np.float32(0.0))
+    isd = np.empty((H, W), np.float32)
+    for y in prange(H):
+        mu = means[0, y]
+        m2 = means[1, y]
+        o = isd[y]
+        for x in range(W):
+            var = max(m2[x] - mu[x] * mu[x], np.float32(0.0))
+            o[x] = np.float32(1.0) / np.sqrt(var) if var > min_variance else np.float32(0.0)
+    return means[0], isd
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)

@@ -219,6 +219,31 @@ def test_block_engine_volume_equals_torch_across_row_blocks(cost, window, kwargs
     torch.testing.assert_close(fast, ref, rtol=1e-5, atol=1e-5 * max(1.0, float(ref.abs().max())))
 
 
+@pytest.mark.parametrize("h, w, window", [(2 * ROW_BLOCK + 6, 43, 9), (ROW_BLOCK + 1, 5, 15), (3, 70, 3)])
+def test_box_planes_steps_equal_the_numpy_composition(h, w, window):
+    """The ZSAD / LS-SAD inputs and NCC's window statistics, each computed in one numba pass with the box mean,
+    are the bits of the numpy composition they replace (``img - mean``, ``img / (mean + eps)``, ``mu`` and
+    ``1 / sqrt(maximum(box(g * g) - mu * mu, 0))`` above the variance floor, else 0), across row blocks, with a
+    window wider than the image and flat patches (variance at the floor)."""
+    from stereonet.cost.volume import LSSAD_EPS, NCC_MIN_VARIANCE
+    from stereonet.kernels.block import BOX_MEAN, BOX_SCALED, BOX_ZERO_MEAN, box_planes, ncc_window_stats
+
+    img = np.random.default_rng(h + w).random((3, h, w), dtype=np.float32)
+    img[:, : h // 2] = 0.25  # flat rows and columns: windows of zero variance
+    img[:, :, : w // 2] = 0.25
+    eps = np.float32(LSSAD_EPS)
+    mean = box_planes(img, window, BOX_MEAN, np.float32(0.0))
+    assert np.array_equal(box_planes(img, window, BOX_ZERO_MEAN, eps), img - mean)
+    assert np.array_equal(box_planes(img, window, BOX_SCALED, eps), img / (mean + eps))
+    grey = np.ascontiguousarray(img[0])
+    floor = np.float32(NCC_MIN_VARIANCE)
+    mu, isd = ncc_window_stats(grey, window, floor)
+    var = np.maximum(box_planes((grey * grey)[None], window, BOX_MEAN, np.float32(0.0))[0] - mu * mu, np.float32(0))
+    ok = var > floor
+    assert np.array_equal(mu, mean[0]) and not ok.all() and ok.any()
+    assert np.array_equal(isd, np.where(ok, np.float32(1) / np.sqrt(np.where(ok, var, np.float32(1))), np.float32(0)))
+
+
 def test_registered_sgm_fast_path_equals_public_composition():
     """``sgm`` on CPU feeds a uint8 census volume to the 16-bit kernel and selects with the confidence in
     one pass from the int16 aggregate; the result equals the documented composition of the public functions
