@@ -347,7 +347,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
 
     Args:
         source: "data_gen" (default) or "random-shift" (tests).
-        height, width: training image size (pairs are rendered at this size).
+        height, width: training image size (pairs are rendered at this size; see ``render_scale``).
         batch_size: pairs per training batch.
         pool_size, reuse: the training stream renders one new pair every ``reuse`` items into a pool of
             ``pool_size`` recent pairs and draws items from the pool (see :class:`PooledCurriculumStream`).
