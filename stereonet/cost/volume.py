@@ -161,17 +161,6 @@ def _chw(img: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(img.detach().to("cpu", torch.float32).numpy())
 
 
-def _box_np(img: np.ndarray, window: int, op: int = 0, eps: float = 0.0) -> np.ndarray:
-    """box_mean of a planar (C, H, W) or (H, W) float32 array with the engine's numba box (a new array); ``op``
-    :data:`~stereonet.kernels.block.BOX_ZERO_MEAN` gives ``img - mean`` and ``BOX_SCALED`` ``img / (mean + eps)``
-    in the same pass (:func:`~stereonet.kernels.block.box_planes`)."""
-    from stereonet.kernels.block import box_planes
-
-    planes = np.ascontiguousarray(img[None] if img.ndim == 2 else img, dtype=np.float32)
-    out = box_planes(planes, window, op, np.float32(eps))
-    return out[0] if img.ndim == 2 else out
-
-
 _NO_CODES = np.zeros((1, 1, 1), np.uint64)
 _NO_MAP = np.zeros((1, 1), np.float32)
 
@@ -213,10 +202,9 @@ def numba_engine_args(left: torch.Tensor, right: torch.Tensor, cost: str, window
         li, ri = _chw(left), _chw(right)
         squared = cost == "ssd" or (cost == "adaptive" and base == "ssd")
         kind = E.KIND_CENSUS_AD if cost == "census_ad" else (E.KIND_SQ if squared else E.KIND_ABS)
-        if cost == "zsad":  # li - box mean, in one pass
-            li, ri = _box_np(li, window, E.BOX_ZERO_MEAN), _box_np(ri, window, E.BOX_ZERO_MEAN)
-        elif cost == "lssad":  # li / (box mean + eps), in one pass
-            li, ri = _box_np(li, window, E.BOX_SCALED, LSSAD_EPS), _box_np(ri, window, E.BOX_SCALED, LSSAD_EPS)
+        if cost in ("zsad", "lssad"):  # li - box mean, or li / (box mean + eps), in the box's own pass
+            op, eps = (E.BOX_ZERO_MEAN, np.float32(0)) if cost == "zsad" else (E.BOX_SCALED, np.float32(LSSAD_EPS))
+            li, ri = E.box_planes(li, window, op, eps), E.box_planes(ri, window, op, eps)
         if cost == "adaptive":
             post, post_window = (E.POST_MULTIWINDOW if mode == "multiwindow" else E.POST_SHIFTABLE), window
     box = 1 if cost == "ad" else window
