@@ -33,12 +33,15 @@ def to_grey(img: torch.Tensor) -> torch.Tensor:
 
 
 def grey_numpy(img: torch.Tensor) -> np.ndarray:
-    """:func:`to_grey` of one image ``(C, H, W)`` as a float32 ``(H, W)`` numpy array, computed in numpy
-    with the same float32 operations (bit-identical to the torch result; no torch threading)."""
+    """:func:`to_grey` of one image ``(C, H, W)`` as a float32 ``(H, W)`` numpy array, computed by
+    :func:`stereonet.kernels.cost.grey_planar` with the same float32 operations (bit-identical to the torch result;
+    no torch threading, no numpy temporaries)."""
+    from stereonet.kernels.cost import grey_planar
+
     a = img.detach().to("cpu", torch.float32).numpy()
     if a.shape[0] == 1:
         return np.ascontiguousarray(a[0])
-    return (a[0] * np.float32(0.299) + a[1] * np.float32(0.587)) + a[2] * np.float32(0.114)
+    return grey_planar(a)
 
 
 def _check_census_args(img: torch.Tensor, window: int) -> None:

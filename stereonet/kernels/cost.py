@@ -1,4 +1,4 @@
-"""Numba CPU helpers of the cost volumes: census codes and the
+"""Numba CPU helpers of the cost volumes: the grey image, census codes and the
 out-of-image fill of ``(H, W, D)`` and ``(H, D, W)`` volumes, the learned-feature cost and the mix of two volumes. The classical
 volumes themselves, and the box means of planar images, are computed row by row by
 :mod:`stereonet.kernels.block`. Rows (or columns) run in parallel with ``prange``.
@@ -31,6 +31,23 @@ def fill_invalid_hdw(vol, fill):
             row = vol[y, d]
             for x in range(min(d, W)):
                 row[x] = fill
+
+
+# one signature for any strides (a photo's (C, H, W) tensor is usually a view of its (H, W, C) pixels), compiled when
+# the module is imported (from numba's cache after the first time), so no layout waits for the compiler at a first call
+@numba.njit("float32[:, ::1](float32[:, :, :])", parallel=True, cache=True, fastmath=False)
+def grey_planar(img):
+    """BT.601 luma (H, W) of a colour image (3, H, W) float32: ``(r * 0.299 + g * 0.587) + b * 0.114`` in float32, the
+    operations and order of :func:`stereonet.cost.census.to_grey` (no fused multiply-add: the same bits), rows in
+    parallel."""
+    _, H, W = img.shape
+    out = np.empty((H, W), np.float32)
+    kr, kg, kb = np.float32(0.299), np.float32(0.587), np.float32(0.114)
+    for y in prange(H):
+        r, g, b, o = img[0, y], img[1, y], img[2, y], out[y]
+        for x in range(W):
+            o[x] = (r[x] * kr + g[x] * kg) + b[x] * kb
+    return out
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)

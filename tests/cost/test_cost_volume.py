@@ -127,6 +127,19 @@ def test_census_signs_are_the_census_bits_as_unit_vectors():
     assert inner.shape == (2, 24, 5, 7) and torch.equal(inner, signs[..., 2:-2, 2:-2])
 
 
+
+def test_grey_numpy_equals_to_grey_on_any_layout():
+    """The numba luma kernel gives torch's bits on contiguous images, on views of (H, W, C) pixels (as photos load)
+    and on crops, with 8-bit values (many equal greys, where census comparisons would flip on a rounding change)."""
+    from stereonet.cost.census import grey_numpy, to_grey
+
+    g = torch.Generator().manual_seed(3)
+    img = torch.randint(0, 256, (1, 3, 67, 131), generator=g).float() / 255
+    hwc = img.permute(0, 2, 3, 1).contiguous().permute(0, 3, 1, 2)
+    for x in (img, hwc, hwc[..., 3:-5, 7:], torch.rand(1, 3, 5, 4, generator=g)):
+        assert torch.equal(to_grey(x)[0, 0], torch.from_numpy(grey_numpy(x[0])))
+    assert grey_numpy(img[0, :1]).shape == (67, 131)  # one channel: the plane itself
+
 def test_correlation_similarity_gradcheck_and_values():
     fl = torch.rand(1, 4, 5, 9, dtype=torch.float64, requires_grad=True)
     fr = torch.rand(1, 4, 5, 9, dtype=torch.float64, requires_grad=True)
