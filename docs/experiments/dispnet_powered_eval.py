@@ -5,6 +5,9 @@ and SEE against the first file: their mean, standard error and t over all pairs 
 rule (the thresholds are the rule's, fixed before any of these pairs was rendered).
 
     cd docs/experiments && python dispnet_powered_eval.py shipped=../../stereonet/weights/dispnet.pt aa=weights/dispnet_aa_long.pt rs2=weights/dispnet_rs2_long.pt
+
+Later rules of the same protocol name their own fresh sets and pooled threshold (the first ``--sets=`` and ``--t=``
+arguments), e.g. ``--sets="pow2c;pow4c;powb2c;powb4c" --t=-1.96`` for one candidate (docs/experiments/dispnet_long4x.txt).
 """
 import math
 import statistics
@@ -43,9 +46,15 @@ if __name__ == "__main__":
     from stereonet.matchers import register
 
     args = sys.argv[1:]
-    sets = SETS
-    if args and args[0].startswith("--sets="):  # a smoke test on other (used) sets; the rule's run never passes it
-        sets, args = tuple(args[0].split("=", 1)[1].split(";")), args[1:]
+    sets, t_pooled = SETS, T_POOLED
+    while args and args[0].startswith("--"):  # a later rule's own sets and threshold (or a smoke test on used sets)
+        key, value = args.pop(0).split("=", 1)
+        if key == "--sets":
+            sets = tuple(value.split(";"))
+        elif key == "--t":
+            t_pooled = float(value)
+        else:
+            raise SystemExit(f"{key}: expected --sets= or --t=")
     names = []
     for arg in args:
         name, path = arg.split("=", 1)
@@ -74,7 +83,7 @@ if __name__ == "__main__":
         n, mean, se, t = summary(paired(pooled_rows, control, cand, "bad2"))
         _, smean, sse, _ = summary(paired(pooled_rows, control, cand, "see"))
         better = sum(x < 0 for x in paired(pooled_rows, control, cand, "bad2"))
-        positive = t <= T_POOLED and smean <= SEE_MARGIN and not vetoed
+        positive = t <= t_pooled and smean <= SEE_MARGIN and not vetoed
         verdicts[cand] = (positive, mean)
         print(f"  pooled n={n} bad-2 diff {mean:+.2f} (se {se:.2f}, t {t:+.2f}; better on {better} of {n})  "
               f"SEE diff {smean:+.3f} (se {sse:.3f})  set veto: {vetoed}  -> {'POSITIVE' if positive else 'NEGATIVE'}")
