@@ -223,17 +223,14 @@ def _tap_row(c, window, inv, o):
 
 
 @numba.njit(cache=True, fastmath=False)
-def _box_row(colsum, window, ny, pa, pb, inv, out, y, mu_l, isd_l, mu_r, isd_r):
+def _box_row(colsum, window, ny, pa, pb, inv, out):
     """out[d, x] = (sum of colsum[d, x - r .. x + r] in the image) / (ny * in-image width), float32.
 
     ``colsum`` (D, W + 2r) has zero pads of r columns on both sides, so every window sums ``window``
     entries. Sums of 2^k neighbours by doubling (``s_k[i] = s_(k-1)[i] + s_(k-1)[i + 2^(k-1)]``, each level
     one vectorised pass along x); level k is added into ``out`` (at the offset of the lower set bits) when
     bit k of ``window`` is set, lowest first. Only the current level is needed, so the levels alternate
-    between the two scratch rows ``pa``/``pb`` (W + 2r,); ``inv`` (W,) is scratch. Windows 3..11 take the written-out sums of :func:`_tap_row` instead.
-    With ``y >= 0`` (else -1, the maps unused) each finished ``out[d]`` then gets NCC's normalisation of image row ``y`` (:func:`_ncc_d`) while it
-    is still in the core's first cache (one pass over the (D, W) row fewer than :func:`_ncc_row` after the box; the same
-    operations, so the same bits)."""
+    between the two scratch rows ``pa``/``pb`` (W + 2r,); ``inv`` (W,) is scratch. Windows 3..11 take the written-out sums of :func:`_tap_row` instead."""
     D, Wp = colsum.shape
     W = out.shape[1]
     r = window // 2
@@ -243,8 +240,6 @@ def _box_row(colsum, window, ny, pa, pb, inv, out, y, mu_l, isd_l, mu_r, isd_r):
         base = colsum[d]
         o = out[d]
         if _tap_row(base, window, inv, o):
-            if y >= 0:
-                _ncc_d(o, d, y, mu_l, isd_l, mu_r, isd_r)
             continue
         if window & 1:
             _add_into(base, 0, W, o, True)
@@ -264,38 +259,30 @@ def _box_row(colsum, window, ny, pa, pb, inv, out, y, mu_l, isd_l, mu_r, isd_r):
             k += 1
         for x in range(W):
             o[x] = o[x] * inv[x]
-        if y >= 0:
-            _ncc_d(o, d, y, mu_l, isd_l, mu_r, isd_r)
-
-
-@numba.njit(cache=True, fastmath=False)
-def _ncc_d(e, d, y, mu_l, isd_l, mu_r, isd_r):
-    """In place on the window means E[l r] (W,) of disparity ``d`` in image row ``y``:
-    ``1 - clip((E[l r] - mu_l mu_r) * isd_l * isd_r, -1, 1)`` with ``isd = 1 / sqrt(var)`` (0 where the variance is
-    too small: NCC := 0, cost 1); contiguous along x, the columns x < d against the right border column."""
-    W = e.shape[0]
-    n = W - d
-    if n > 0:
-        t = e[d:]
-        ml = mu_l[y, d:]
-        il = isd_l[y, d:]
-        mr = mu_r[y, :n]
-        ir = isd_r[y, :n]
-        for i in range(n):
-            ncc = (t[i] - ml[i] * mr[i]) * (il[i] * ir[i])
-            t[i] = np.float32(1.0) - min(max(ncc, np.float32(-1.0)), np.float32(1.0))
-    m0 = mu_r[y, 0]
-    i0 = isd_r[y, 0]
-    for x in range(min(d, W)):  # x - d < 0: the border column
-        ncc = (e[x] - mu_l[y, x] * m0) * (isd_l[y, x] * i0)
-        e[x] = np.float32(1.0) - min(max(ncc, np.float32(-1.0)), np.float32(1.0))
 
 
 @numba.njit(cache=True, fastmath=False)
 def _ncc_row(row, y, mu_l, isd_l, mu_r, isd_r):
-    """:func:`_ncc_d` on every disparity of a (D, W) row of window means (the pixelwise path, window 1)."""
-    for d in range(row.shape[0]):
-        _ncc_d(row[d], d, y, mu_l, isd_l, mu_r, isd_r)
+    """In place on a (D, W) row of window means E[l r]: ``1 - clip((E[l r] - mu_l mu_r) * isd_l * isd_r, -1, 1)``
+    with ``isd = 1 / sqrt(var)`` (0 where the variance is too small: NCC := 0, cost 1); contiguous along x."""
+    D, W = row.shape
+    m0 = mu_r[y, 0]
+    i0 = isd_r[y, 0]
+    for d in range(D):
+        e = row[d]
+        n = W - d
+        if n > 0:
+            t = e[d:]
+            ml = mu_l[y, d:]
+            il = isd_l[y, d:]
+            mr = mu_r[y, :n]
+            ir = isd_r[y, :n]
+            for i in range(n):
+                ncc = (t[i] - ml[i] * mr[i]) * (il[i] * ir[i])
+                t[i] = np.float32(1.0) - min(max(ncc, np.float32(-1.0)), np.float32(1.0))
+        for x in range(min(d, W)):  # x - d < 0: the border column
+            ncc = (e[x] - mu_l[y, x] * m0) * (isd_l[y, x] * i0)
+            e[x] = np.float32(1.0) - min(max(ncc, np.float32(-1.0)), np.float32(1.0))
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -407,7 +394,6 @@ def box_planes(img, window, op, eps):
         pa = np.empty(Wp, np.float32)
         pb = np.empty(Wp, np.float32)
         inv = np.empty(W, np.float32)
-        no_map = np.zeros((1, 1), np.float32)  # _box_row's NCC maps, unused here
         plane = img[c]
         for yy in range(max(a - r, 0), min(a + r, H - 1) + 1):
             src = plane[yy]
@@ -426,8 +412,7 @@ def box_planes(img, window, op, eps):
             dst = row[0, r:r + W]
             for x in range(W):
                 dst[x] = np.float32(acc[x])
-            _box_row(row, window, min(y + r, H - 1) - max(y - r, 0) + 1, pa, pb, inv, out[c, y:y + 1], -1, no_map,
-                     no_map, no_map, no_map)
+            _box_row(row, window, min(y + r, H - 1) - max(y - r, 0) + 1, pa, pb, inv, out[c, y:y + 1])
             o = out[c, y]
             src = plane[y]
             if op == BOX_ZERO_MEAN:
@@ -533,10 +518,9 @@ def block_cost_rows(mode, kind, L, R, CL, CR, n_disp, window, post, post_window,
             else:
                 _slide_rows(colsum, kind, ya + r if ya + r < H else -1, ya - r - 1, L, R, CL, CR, lam_c, lam_a,
                             r, buf_in, pring)
-            if r > 0:  # NCC's normalisation inside the box pass, row d by row d (see _box_row)
-                _box_row(colsum, window, min(ya + r, H - 1) - max(ya - r, 0) + 1, pa, pb, inv, agg,
-                         ya if post == POST_NCC else -1, mu_l, isd_l, mu_r, isd_r)
-            elif post == POST_NCC:
+            if r > 0:
+                _box_row(colsum, window, min(ya + r, H - 1) - max(ya - r, 0) + 1, pa, pb, inv, agg)
+            if post == POST_NCC:
                 _ncc_row(agg, ya, mu_l, isd_l, mu_r, isd_r)
             # output rows whose last needed window-mean row is ya
             y_lo = ya - R_post if ya < H - 1 else max(ya - R_post, a)
