@@ -39,8 +39,11 @@ def fill_invalid_hdw(vol, fill):
 def grey_planar(img):
     """BT.601 luma (H, W) of a colour image (3, H, W) float32: ``(r * 0.299 + g * 0.587) + b * 0.114`` in float32, the
     operations and order of :func:`stereonet.cost.census.to_grey` (no fused multiply-add: the same bits), rows in
-    parallel."""
-    _, H, W = img.shape
+    parallel. Channels past the third are ignored, as by ``to_grey``; fewer than three raise (numba does not check
+    indices, so the kernel itself guards the reads of ``img[2]``)."""
+    C, H, W = img.shape
+    if C < 3:
+        raise ValueError("img: expected at least 3 channels")
     out = np.empty((H, W), np.float32)
     kr, kg, kb = np.float32(0.299), np.float32(0.587), np.float32(0.114)
     for y in prange(H):
