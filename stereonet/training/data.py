@@ -317,14 +317,15 @@ class PooledCurriculumStream(IterableDataset):
             yield _training_fields(item)
 
 
-def gt_nonoccluded(disparity: torch.Tensor, disparity_right: torch.Tensor, tol: float = 1.0) -> torch.Tensor:
+def gt_nonoccluded(disparity: torch.Tensor, disparity_right: torch.Tensor, tol: float | None = None) -> torch.Tensor:
     """Pixels whose ground-truth match agrees with the right view's ground truth (not occluded).
 
     disparity, disparity_right: :math:`(1, H, W)` left- and right-referenced; returns bool :math:`(1, H, W)`.
+    ``tol`` defaults to the one left-right rule's :data:`~stereonet.select.lr_check.LR_TOL`.
     """
-    from stereonet.select.lr_check import left_right_check  # the one LR rule
+    from stereonet.select.lr_check import LR_TOL, left_right_check  # the one LR rule
 
-    return left_right_check(disparity[None], disparity_right[None], tol)[0]
+    return left_right_check(disparity[None], disparity_right[None], LR_TOL if tol is None else tol)[0]
 
 
 def _training_fields(item: dict) -> dict:
