@@ -59,7 +59,9 @@ on seeds 5311-5318 (dispnet's weighted-median window: selection; the confirmatio
 and ``val2bg``/``val4bg``/``wb2s``/``wb4s`` on seeds 5323-5326 (its shipped-recipe run), ``pow2``/``pow4``/``powb2``/``powb4``
 (64 pairs each, difficulties 2 / 4, the last two with every background wall weakly textured) on seeds 5327-5330 (the
 thirty-ninth session's powered DispNet decision, docs/experiments/dispnet_powered.txt) and ``pow2c``/``pow4c``/``powb2c``/``powb4c``
-the same on seeds 5331-5334 (its 4x-schedule run, docs/experiments/dispnet_long4x.txt); any
+the same on seeds 5331-5334 (its 4x-schedule run, docs/experiments/dispnet_long4x.txt) and ``pow2d``/``pow4d``/
+``powb2d``/``powb4d`` the same on seeds 5335-5338 (the fortieth session's pooled full-resolution volume,
+docs/experiments/dispnet_pooled.txt); any
 other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -149,7 +151,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "pow2": (64, 5327, 2), "pow4": (64, 5328, 4),
         "powb2": (64, 5329, 2, {"weak_background": 1.0}), "powb4": (64, 5330, 4, {"weak_background": 1.0}),
         "pow2c": (64, 5331, 2), "pow4c": (64, 5332, 4),
-        "powb2c": (64, 5333, 2, {"weak_background": 1.0}), "powb4c": (64, 5334, 4, {"weak_background": 1.0})}
+        "powb2c": (64, 5333, 2, {"weak_background": 1.0}), "powb4c": (64, 5334, 4, {"weak_background": 1.0}),
+        "pow2d": (64, 5335, 2), "pow4d": (64, 5336, 4),
+        "powb2d": (64, 5337, 2, {"weak_background": 1.0}), "powb4d": (64, 5338, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 

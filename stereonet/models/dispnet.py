@@ -103,6 +103,12 @@ class DispNet(nn.Module):
             regression from the decoder features, DispNet's) or "matched" (the soft-argmax over the local
             correlation's ``2 refine_radius + 1`` shifts of the correlation plus learned logits, the logits' layer
             zero at the start: a correction that is always a match within reach; needs ``refine_radius >= 1``).
+        volume: what the 1/4 matching volume compares (``matching="census"`` only for the last two): "coarse" (the
+            features at 1/4, DispNet's), "pooled" (the full-resolution features compared at every integer disparity,
+            each group's correlation averaged over the 4x4 input pixels of a 1/4 cell and maximised over the 4
+            disparities of each level, :func:`pooled_group_correlation`: a 1/4 cell's evidence from the image's fine
+            texture, which the 1/4 census of the area-downsampled image averages away) or "both" (the two volumes'
+            groups side by side, ``2 groups`` channels into the "3d" aggregation; the plain correlation is their mean).
     """
 
     stride = 16
@@ -111,7 +117,7 @@ class DispNet(nn.Module):
     def __init__(self, max_disp: int = 96, channels: int = 16, refine_radius: int = 2,
                  aggregation: str = "2d", groups: int = 4, upsample: str = "bilinear",
                  matching: str = "learned", agg_dilations: tuple[int, int, int] | list[int] = (1, 1, 1),
-                 refine_readout: str = "residual") -> None:
+                 refine_readout: str = "residual", volume: str = "coarse") -> None:
         super().__init__()
         if max_disp < 4:
             raise StereoInputError(f"max_disp: expected >= 4, got {max_disp}")
@@ -132,6 +138,10 @@ class DispNet(nn.Module):
             raise StereoInputError(f"refine_readout: expected 'residual' or 'matched', got {refine_readout!r}")
         if refine_readout == "matched" and refine_radius < 1:
             raise StereoInputError(f"refine_radius: refine_readout='matched' needs >= 1, got {refine_radius}")
+        if volume not in ("coarse", "pooled", "both"):
+            raise StereoInputError(f"volume: expected 'coarse', 'pooled' or 'both', got {volume!r}")
+        if volume != "coarse" and matching != "census":
+            raise StereoInputError(f"volume: {volume!r} needs matching='census', got matching={matching!r}")
         agg_dilations = tuple(agg_dilations)
         if len(agg_dilations) != 3 or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 1
                                               for s in agg_dilations):
@@ -146,6 +156,7 @@ class DispNet(nn.Module):
         self.upsample = upsample
         self.matching = matching
         self.refine_readout = refine_readout
+        self.volume = volume
         c = self.channels
         r = 2 * self.refine_radius + 1  # channels of each local correlation
         self.corr_disp = self.max_disp // 4
@@ -164,7 +175,8 @@ class DispNet(nn.Module):
         else:  # group-wise correlation volume aggregated by 3-D convolutions over (disparity, y, x)
             g = self.groups
             s0, s1, s2 = agg_dilations
-            self.corr_agg = nn.Sequential(conv3d_block(g, 8, s0), conv3d_block(8, 8, s1), PlaneConv3d(8, 1, s2))
+            g_in = 2 * g if volume == "both" else g
+            self.corr_agg = nn.Sequential(conv3d_block(g_in, 8, s0), conv3d_block(8, 8, s1), PlaneConv3d(8, 1, s2))
         self.enc3 = nn.Sequential(conv_block(d4 + c, 4 * c, 3, stride=2), conv_block(4 * c, 4 * c))
         self.enc4 = nn.Sequential(conv_block(4 * c, 6 * c, 3, stride=2), conv_block(6 * c, 6 * c))
         # decoder
@@ -211,6 +223,15 @@ class DispNet(nn.Module):
         grey = to_grey(both)
         half = _mean2x2(grey)
         return tuple(census_signs(g, self.census_window) for g in (grey, half, _mean2x2(half)))
+
+    def _group_volume(self, n0: torch.Tensor, n2: torch.Tensor, b: int) -> torch.Tensor:
+        """The 1/4 group volume of ``volume="pooled"`` or ``"both"`` from the census features at 1/1 (``n0``) and 1/4
+        (``n2``), both :math:`(2B, n, H/s, W/s)` left views first; :math:`(B, G', D4, H/4, W/4)`."""
+        with torch.no_grad():  # fixed features: nothing to learn through the comparisons
+            pooled = pooled_group_correlation(n0[:b], n0[b:], self.max_disp, self.groups, 4)
+        if self.volume == "pooled":
+            return pooled
+        return torch.cat([group_correlation_1d(n2[:b], n2[b:], self.corr_disp, self.groups), pooled], dim=1)
 
     def _select_up(self, coarse: torch.Tensor, unit_left: torch.Tensor, unit_right: torch.Tensor,
                    context: torch.Tensor, scale: int, head: nn.Module) -> torch.Tensor:
@@ -266,7 +287,12 @@ class DispNet(nn.Module):
             e2 = self.enc2(e1)
             n0, n1, n2 = unit_channels(e0), unit_channels(e1), unit_channels(e2)  # normalised once per scale
         e1_l, e2_l = e1[:b], e2[:b]
-        if self.aggregation == "2d":
+        if self.volume != "coarse":
+            gwc = self._group_volume(n0, n2, b)  # BxG'xD4xH/4xW/4
+            corr = gwc.mean(dim=1)
+            agg = self.corr_agg(corr) if self.aggregation == "2d" else self.corr_agg(gwc * self.groups)[:, 0]
+            logits = corr * self.corr_scale + agg
+        elif self.aggregation == "2d":
             corr = correlation_1d(n2[:b], n2[b:], self.corr_disp)  # BxD4xH/4xW/4
             logits = corr * self.corr_scale + self.corr_agg(corr)
         else:
@@ -301,6 +327,43 @@ class DispNet(nn.Module):
         d0 = d0_init + self._correction(self.pred0, x0, local0, 1)
         return DispNetOutput(disparity=d0, pyramid=[d4, d3, d2, d1, d0], features={1: x0, 2: x1, 4: x2},
                              matched=d_match)
+
+
+def pooled_group_correlation(feat_left: torch.Tensor, feat_right: torch.Tensor, max_disp: int, groups: int,
+                             pool: int) -> torch.Tensor:
+    """Group-wise 1-D correlation at full resolution pooled to ``1/pool`` (``volume="pooled"`` of :class:`DispNet`).
+
+    Level ``k`` of the result (``k = 0 .. max_disp // pool``, disparity ``pool k`` input pixels) is, per group, the
+    maximum over the integer disparities ``d`` of ``pool k - pool // 2 .. pool k + pool // 2 - 1`` (within ``0 ..
+    max_disp``) of the group's correlation at ``d`` (:func:`~stereonet.cost.correlation.group_correlation_1d`'s
+    values, 0 where ``x - d < 0``) averaged over each ``pool x pool`` cell. One level at a time, so memory stays at a
+    few full-resolution planes whatever ``max_disp``.
+
+    Args:
+        feat_left, feat_right: :math:`(B, C, H, W)`, C divisible by ``groups``, H and W multiples of ``pool``.
+
+    Returns:
+        :math:`(B, G, max_disp // pool + 1, H / pool, W / pool)`.
+    """
+    b, c, h, w = feat_left.shape
+    if feat_right.shape != feat_left.shape:
+        raise StereoInputError(f"feat_right: expected shape {tuple(feat_left.shape)}, got {tuple(feat_right.shape)}")
+    if c % groups or h % pool or w % pool:
+        raise StereoInputError(f"feat_left: expected C divisible by groups={groups} and H, W by pool={pool}, "
+                               f"got {tuple(feat_left.shape)}")
+    fl = feat_left.view(b, groups, c // groups, h, w)
+    fr = feat_right.view(b, groups, c // groups, h, w)
+    levels = max_disp // pool + 1
+    out = feat_left.new_zeros((b, groups, levels, h // pool, w // pool))
+    for k in range(levels):
+        best = None
+        for d in range(max(pool * k - pool // 2, 0), min(pool * k + pool // 2 - 1, max_disp, w - 1) + 1):
+            sim = F.pad((fl[..., d:] * fr[..., : w - d]).mean(dim=2), (d, 0))  # BxGxHxW, 0 where x < d
+            pooled = F.avg_pool2d(sim, pool)
+            best = pooled if best is None else torch.maximum(best, pooled)
+        if best is not None:
+            out[:, :, k] = best
+    return out
 
 
 def run_padded(net: nn.Module, left: torch.Tensor, right: torch.Tensor):

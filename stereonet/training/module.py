@@ -175,10 +175,11 @@ class StereoModule(L.LightningModule):
 
 
 def _dispnet_config(max_disp: int, channels: int, aggregation: str, upsample: str, matching: str,
-                    refine_radius: int = 2, agg_dilations=(1, 1, 1), refine_readout: str = "residual") -> dict:
-    """A DispNet network config (also SMD's backbone part), with ``matching``, ``refine_radius``, ``agg_dilations``
-    and ``refine_readout`` only when they differ from their defaults ("learned", 2, (1, 1, 1), "residual"; so the
-    weight files written before an option stay as they were; files without a key have its default)."""
+                    refine_radius: int = 2, agg_dilations=(1, 1, 1), refine_readout: str = "residual",
+                    volume: str = "coarse") -> dict:
+    """A DispNet network config (also SMD's backbone part), with ``matching``, ``refine_radius``, ``agg_dilations``,
+    ``refine_readout`` and ``volume`` only when they differ from their defaults ("learned", 2, (1, 1, 1), "residual",
+    "coarse"; so the weight files written before an option stay as they were; files without a key have its default)."""
     config = {"max_disp": max_disp, "channels": channels, "aggregation": aggregation, "upsample": upsample}
     if matching != "learned":
         config["matching"] = matching
@@ -188,6 +189,8 @@ def _dispnet_config(max_disp: int, channels: int, aggregation: str, upsample: st
         config["agg_dilations"] = list(agg_dilations)
     if refine_readout != "residual":
         config["refine_readout"] = refine_readout
+    if volume != "coarse":
+        config["volume"] = volume
     return config
 
 
@@ -195,8 +198,8 @@ class DispNetModule(StereoModule):
     """Trains :class:`~stereonet.models.dispnet.DispNet` with the coarse-to-fine multi-scale L1 loss.
 
     Args:
-        max_disp, channels, aggregation, upsample, matching, refine_radius, agg_dilations, refine_readout: the
-            network's (see DispNet).
+        max_disp, channels, aggregation, upsample, matching, refine_radius, agg_dilations, refine_readout, volume:
+            the network's (see DispNet).
         scale_weight_width: std (in scale steps) of the moving loss-weight bump.
         match_weight: weight of the L1 loss on the correlation's soft-argmin at 1/4 (``out.matched``), which
             makes the shared features learn to match instead of the decoder learning a prior.
@@ -214,21 +217,21 @@ class DispNetModule(StereoModule):
                  schedule_steps: int = 5000, aggregation: str = "2d", upsample: str = "bilinear",
                  channels_last: bool = False, matching: str = "learned", refine_radius: int = 2,
                  agg_dilations: list[int] | tuple[int, int, int] = (1, 1, 1),
-                 refine_readout: str = "residual", loss_pixels: str = "valid") -> None:
+                 refine_readout: str = "residual", loss_pixels: str = "valid", volume: str = "coarse") -> None:
         if loss_pixels not in ("valid", "nonoccluded"):
             raise StereoInputError(f"loss_pixels: expected 'valid' or 'nonoccluded', got {loss_pixels!r}")
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         self.model = DispNet(max_disp=max_disp, channels=channels, aggregation=aggregation, upsample=upsample,
                              matching=matching, refine_radius=refine_radius, agg_dilations=tuple(agg_dilations),
-                             refine_readout=refine_readout)
+                             refine_readout=refine_readout, volume=volume)
         self.use_channels_last(channels_last)
 
     def model_config(self) -> dict:
         hp = self.hparams
         return _dispnet_config(hp.max_disp, hp.channels, hp.aggregation, hp.upsample, hp.matching,
                                hp.get("refine_radius", 2), hp.get("agg_dilations", (1, 1, 1)),
-                               hp.get("refine_readout", "residual"))
+                               hp.get("refine_readout", "residual"), hp.get("volume", "coarse"))
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
         return self.model(left, right)

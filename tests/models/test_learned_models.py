@@ -67,6 +67,8 @@ def test_forward_rejects_unpadded_input(small_dispnet):
     ({"refine_radius": -1}, "refine_radius: expected >= 0"),
     ({"refine_readout": "free"}, "refine_readout: expected 'residual' or 'matched'"),
     ({"refine_readout": "matched", "refine_radius": 0}, "refine_radius: refine_readout='matched' needs >= 1"),
+    ({"volume": "fine"}, "volume: expected 'coarse', 'pooled' or 'both'"),
+    ({"volume": "pooled"}, "volume: 'pooled' needs matching='census'"),
 ])
 def test_dispnet_rejects_bad_options_naming_them(options, message):
     with pytest.raises(StereoInputError, match=message):
@@ -636,3 +638,58 @@ def test_error_probability_is_the_mixture_tail_around_the_answer():
     narrow_alone = MixtureParams(one(5), one(5), one(0.3), one(0.3), one(0.7))
     narrow_beside_far = MixtureParams(one(5), one(30), one(0.3), one(0.3), one(0.7))
     assert float(error_probability(narrow_beside_far, one(5))) > 0.29 > float(error_probability(narrow_alone, one(5)))
+
+
+def test_pooled_group_correlation_equals_pooling_the_full_resolution_volume():
+    """Level k of the pooled volume is, per group, the maximum over the disparities 4k-2 .. 4k+1 (within range) of
+    the full-resolution group correlation averaged over each 4x4 cell: the same as pooling
+    ``group_correlation_1d``'s whole volume (which it never builds), on a shape whose range ends mid-level and
+    where the left-border cells have no match for the largest disparities."""
+    import torch.nn.functional as F
+
+    from stereonet.models.dispnet import pooled_group_correlation
+
+    torch.manual_seed(0)
+    fl, fr = torch.randn(2, 8, 12, 20), torch.randn(2, 8, 12, 20)
+    max_disp, groups = 13, 2
+    got = pooled_group_correlation(fl, fr, max_disp, groups, 4)
+    full = F.avg_pool3d(group_correlation_1d(fl, fr, max_disp, groups), (1, 4, 4))  # BxGx(D+1)xH/4xW/4
+    assert got.shape == (2, groups, max_disp // 4 + 1, 3, 5)
+    for k in range(max_disp // 4 + 1):
+        ds = [d for d in range(4 * k - 2, 4 * k + 2) if 0 <= d <= max_disp]
+        torch.testing.assert_close(got[:, :, k], full[:, :, ds].amax(dim=2), rtol=1e-5, atol=1e-6)
+    with pytest.raises(StereoInputError, match="feat_left: expected C divisible by groups=3"):
+        pooled_group_correlation(fl, fr, max_disp, 3, 4)
+
+
+@pytest.mark.parametrize("volume", ["pooled", "both"])
+def test_dispnet_full_resolution_volume_trains_and_keeps_its_config(volume):
+    """``volume="pooled"`` / ``"both"``: the network runs on any padded size, its loss reaches the 3-D aggregation
+    (gradients on its first layer, whose input width doubles for "both"), and the weights config carries the option
+    (a network built without it cannot take the tensors of "both", and computes other values for "pooled")."""
+    from stereonet.models.weights import build_model
+    from stereonet.training.module import DispNetModule
+
+    torch.manual_seed(0)
+    module = DispNetModule(max_disp=16, channels=4, matching="census", aggregation="3d", volume=volume)
+    left, right = torch.rand(1, 3, 32, 48), torch.rand(1, 3, 32, 48)
+    out = module.model(left, right)
+    assert out.disparity.shape == (1, 1, 32, 48) and torch.isfinite(out.disparity).all()
+    out.matched.mean().backward()
+    first = module.model.corr_agg[0][0].weight
+    assert first.shape[1] == (8 if volume == "both" else 4) and first.grad.abs().sum() > 0
+    config = module.model_config()
+    assert config["volume"] == volume
+    assert "volume" not in DispNetModule(max_disp=16, channels=4, matching="census", aggregation="3d").model_config()
+    net = build_model("dispnet", config).eval()
+    net.load_state_dict(module.model.state_dict())
+    coarse = build_model("dispnet", {k: v for k, v in config.items() if k != "volume"}).eval()
+    module.eval()
+    with torch.no_grad():
+        assert torch.equal(net(left, right).disparity, module.model(left, right).disparity)
+        if volume == "both":
+            with pytest.raises(RuntimeError):
+                coarse.load_state_dict(module.model.state_dict())
+        else:
+            coarse.load_state_dict(module.model.state_dict())
+            assert not torch.allclose(coarse(left, right).disparity, net(left, right).disparity)
