@@ -1,6 +1,7 @@
 """Per render (data_gen difficulty 2, 96x192, seeds 12-31): bad-2 of the visible pixels dispnet's left-right check rejects
 divided by that of the accepted ones, for the shipped file and the 4x file (the property of
-tests/matchers/test_learned.py::test_dispnet_lr_check_finds_the_occlusions_of_a_render, which checks it on seed 12 only).
+tests/matchers/test_learned.py::test_dispnet_lr_check_finds_the_occlusions_of_a_render, which checked it on seed 12
+only until the forty-first session and now pools eight renders).
 Run: OMP_NUM_THREADS=2 python docs/experiments/lr_reject_ratio.py"""
 import torch
 

@@ -208,23 +208,30 @@ def test_smd_weighted_median_filters_the_filled_mode_and_scores_the_filtered_ans
 
 @pytest.mark.skipif(not matchers.weights_available("dispnet"), reason="shipped dispnet weights not installed")
 def test_dispnet_lr_check_finds_the_occlusions_of_a_render():
-    """With the shipped dispnet.pt on a data_gen render, the left-right check rejects most of the ground truth's
+    """With the shipped dispnet.pt on data_gen renders, the left-right check rejects most of the ground truth's
     occlusions (a share there at least twice the share elsewhere), and elsewhere the pixels it rejects are
     mismatches: their bad-2 rate at least twice the accepted pixels'; the default's weighted median then moves some
-    pixels (not most)."""
+    pixels (not most). The shares are pooled over eight renders: on one render the accepted pixels' bad-2 can be
+    a few per cent or a few tens, so a one-render ratio says more about that render than about the check
+    (docs/experiments/lr_reject_ratio.py: per render it ranges from under 2 to over 90 for either file; pooled
+    here about 5 for both)."""
     import data_gen
     from stereonet.select.fill import fill_occlusions
 
-    item = data_gen.SyntheticStereo(1, seed=12, difficulty=2, height=96, width=192)[0]
-    out = match("dispnet", item["left"][None], item["right"][None], item["max_disp"], wmf_radius=0)
-    occluded = item["occlusion"][None] & item["valid"][None]
-    visible = ~item["occlusion"][None] & item["valid"][None]
-    assert occluded.any() and visible.any()
-    rejected_occluded = 1 - out.valid[occluded].float().mean()
-    rejected_visible = 1 - out.valid[visible].float().mean()
+    renders = data_gen.SyntheticStereo(8, seed=12, difficulty=2, height=96, width=192)
+    counts = torch.zeros(6)
+    for item in renders:
+        out = match("dispnet", item["left"][None], item["right"][None], item["max_disp"], wmf_radius=0)
+        occluded = item["occlusion"][None] & item["valid"][None]
+        visible = ~item["occlusion"][None] & item["valid"][None]
+        bad = (out.disparity - item["disparity"][None]).abs() > 2
+        counts += torch.stack([(occluded & ~out.valid).sum(), occluded.sum(), (visible & ~out.valid).sum(),
+                               visible.sum(), (bad & visible & ~out.valid).sum(), (bad & visible & out.valid).sum()])
+    rejected_occ, n_occ, rejected_vis, n_vis, bad_rejected, bad_accepted = counts.tolist()
+    assert n_occ > 0 and rejected_vis > 0 and n_vis > rejected_vis
+    rejected_occluded, rejected_visible = rejected_occ / n_occ, rejected_vis / n_vis
     assert rejected_occluded > 0.5 and rejected_occluded > 2 * rejected_visible, (rejected_occluded, rejected_visible)
-    bad = (out.disparity - item["disparity"][None]).abs() > 2
-    bad_rejected, bad_accepted = bad[visible & ~out.valid].float().mean(), bad[visible & out.valid].float().mean()
+    bad_rejected, bad_accepted = bad_rejected / rejected_vis, bad_accepted / (n_vis - rejected_vis)
     assert bad_rejected > 2 * bad_accepted, (bad_rejected, bad_accepted)
     # the default then fills and filters: on a render with depth edges the weighted median moves some pixels
     filtered = match("dispnet", item["left"][None], item["right"][None], item["max_disp"])
