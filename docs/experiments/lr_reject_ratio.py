@@ -1,7 +1,7 @@
-"""Per render (data_gen difficulty 2, 96x192, seeds 12-31): bad-2 of the visible pixels dispnet's left-right check rejects
-divided by that of the accepted ones, for the shipped file and the 4x file (the property of
-tests/matchers/test_learned.py::test_dispnet_lr_check_finds_the_occlusions_of_a_render, which checked it on seed 12
-only until the forty-first session and now pools eight renders).
+"""Per render (data_gen difficulty 2, 96x192, seeds 12-31): bad-2 of the visible pixels dispnet's left-right check
+rejects divided by that of the accepted ones, for the thirty-sixth session's file (shipped until the forty-first) and
+the 4x file (the property of tests/matchers/test_learned.py::test_dispnet_lr_check_finds_the_occlusions_of_a_render,
+which checked it on seed 12 only until the forty-first session and now pools eight renders).
 Run: OMP_NUM_THREADS=2 python docs/experiments/lr_reject_ratio.py"""
 import torch
 
@@ -9,7 +9,7 @@ import data_gen
 from stereonet.matchers import match
 
 torch.set_grad_enabled(False)
-for ck in ("stereonet/weights/dispnet.pt", "docs/experiments/weights/dispnet_long4x.pt"):
+for ck in ("docs/experiments/weights/dispnet_noc_long.pt", "docs/experiments/weights/dispnet_long4x.pt"):
     ratios = []
     for seed in range(12, 32):
         item = data_gen.SyntheticStereo(1, seed=seed, difficulty=2, height=96, width=192)[0]

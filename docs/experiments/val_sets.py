@@ -61,7 +61,8 @@ and ``val2bg``/``val4bg``/``wb2s``/``wb4s`` on seeds 5323-5326 (its shipped-reci
 thirty-ninth session's powered DispNet decision, docs/experiments/dispnet_powered.txt) and ``pow2c``/``pow4c``/``powb2c``/``powb4c``
 the same on seeds 5331-5334 (its 4x-schedule run, docs/experiments/dispnet_long4x.txt) and ``pow2d``/``pow4d``/
 ``powb2d``/``powb4d`` the same on seeds 5335-5338 (the fortieth session's pooled full-resolution volume,
-docs/experiments/dispnet_pooled.txt); any
+docs/experiments/dispnet_pooled.txt) and ``pow2e``/``pow4e``/``powb2e``/``powb4e`` the same on seeds 5339-5342 (smd's
+head on the 4x-schedule dispnet.pt, docs/experiments/smd_head_4x.txt); any
 other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -153,7 +154,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "pow2c": (64, 5331, 2), "pow4c": (64, 5332, 4),
         "powb2c": (64, 5333, 2, {"weak_background": 1.0}), "powb4c": (64, 5334, 4, {"weak_background": 1.0}),
         "pow2d": (64, 5335, 2), "pow4d": (64, 5336, 4),
-        "powb2d": (64, 5337, 2, {"weak_background": 1.0}), "powb4d": (64, 5338, 4, {"weak_background": 1.0})}
+        "powb2d": (64, 5337, 2, {"weak_background": 1.0}), "powb4d": (64, 5338, 4, {"weak_background": 1.0}),
+        "pow2e": (64, 5339, 2), "pow4e": (64, 5340, 4),
+        "powb2e": (64, 5341, 2, {"weak_background": 1.0}), "powb4e": (64, 5342, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
