@@ -2,8 +2,8 @@
 # Train the four learned weight files as the shipped ones were trained, export them to stereonet/weights/ and plot
 # the curves. Run from the repository root; logs and checkpoints go to lightning_logs/.
 # Two phases, because refine.pt is trained on top of another file: it reads siamese-census-sgm's maps (siamese.pt,
-# fixed), the file that phase 1 has just exported. smd.pt's backbone is a committed file
-# (docs/experiments/weights/dispnet_shipped22.pt, configs/smd.yaml), not this run's dispnet.pt.
+# fixed), the file that phase 1 has just exported. smd.pt's backbone is a committed file, the shipped dispnet.pt's
+# kept copy (docs/experiments/weights/dispnet_long4x.pt, configs/smd.yaml), not this run's dispnet.pt.
 #   phase 1, in parallel: siamese (29 803 steps, 32 min alone on 2 threads) and dispnet (25 916 steps, ~5.3 h alone)
 #   phase 2, in parallel: smd's head (3 819 steps, 21.5 min alone) and sgm-refine (14 000 steps, 34 min alone)
 # One thread each on a 2-core CPU, so each takes longer than alone (the shipped weights were each trained alone; see
