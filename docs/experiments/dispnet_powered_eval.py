@@ -10,7 +10,9 @@ Later rules of the same protocol name their own fresh sets and pooled threshold 
 arguments), e.g. ``--sets="pow2c;pow4c;powb2c;powb4c" --t=-1.96`` for one candidate (docs/experiments/dispnet_long4x.txt).
 ``--matcher=smd`` runs the files as ``smd`` runs by default instead and adds the rule of docs/experiments/smd_head_4x.txt
 on its uncertainty: the paired AUSE, whose pooled mean difference may not be positive and which may not be worse with
-t >= +2.0 on any set.
+t >= +2.0 on any set. ``--target=see`` (docs/experiments/smd_head_edge.txt) tests the edges instead: the pooled paired
+t of SEE must be at or below ``--t``, the mean paired bad-2 difference at most +0.1 points, and no set worse in bad-2
+(or, with ``--matcher=smd``, in AUSE) with t >= +2.0.
 """
 import math
 import statistics
@@ -24,6 +26,7 @@ SETS = ("pow2", "pow4", "powb2", "powb4")
 T_POOLED = -2.24  # Bonferroni over two candidates, two-sided 5 %: |z| >= 2.24
 T_SET_WORSE = 2.0  # a set on which a candidate is this significantly worse vetoes it
 SEE_MARGIN = 0.1  # px: the mean paired SEE difference may not exceed this
+BAD2_MARGIN = 0.1  # points: with --target=see, the mean paired bad-2 difference may not exceed this
 
 
 def paired(rows, a, b, key):
@@ -49,7 +52,7 @@ if __name__ == "__main__":
     from stereonet.matchers import register
 
     args = sys.argv[1:]
-    sets, t_pooled, matcher = SETS, T_POOLED, "dispnet"
+    sets, t_pooled, matcher, target = SETS, T_POOLED, "dispnet", "bad2"
     while args and args[0].startswith("--"):  # a later rule's own sets and threshold (or a smoke test on used sets)
         key, value = args.pop(0).split("=", 1)
         if key == "--sets":
@@ -58,8 +61,10 @@ if __name__ == "__main__":
             t_pooled = float(value)
         elif key == "--matcher" and value in ("dispnet", "smd"):
             matcher = value
+        elif key == "--target" and value in ("bad2", "see"):
+            target = value
         else:
-            raise SystemExit(f"{key}={value}: expected --sets=, --t= or --matcher=dispnet|smd")
+            raise SystemExit(f"{key}={value}: expected --sets=, --t=, --matcher=dispnet|smd or --target=bad2|see")
     run = {"dispnet": dispnet_matcher, "smd": smd_matcher}[matcher]
     keys = ("bad2", "see", "ause") if matcher == "smd" else ("bad2", "see")
     names = []
@@ -93,9 +98,14 @@ if __name__ == "__main__":
                 print(f"  {s:6s} AUSE diff {amean:+.3f} (se {ase:.3f}, t {at:+.2f})")
                 vetoed |= at >= T_SET_WORSE
         n, mean, se, t = summary(paired(pooled_rows, control, cand, "bad2"))
-        _, smean, sse, _ = summary(paired(pooled_rows, control, cand, "see"))
+        _, smean, sse, st = summary(paired(pooled_rows, control, cand, "see"))
         better = sum(x < 0 for x in paired(pooled_rows, control, cand, "bad2"))
-        positive = t <= t_pooled and smean <= SEE_MARGIN and not vetoed
+        if target == "see":
+            print(f"  pooled SEE t {st:+.2f} (the target; better on "
+                  f"{sum(x < 0 for x in paired(pooled_rows, control, cand, 'see'))})")
+            positive = st <= t_pooled and mean <= BAD2_MARGIN and not vetoed
+        else:
+            positive = t <= t_pooled and smean <= SEE_MARGIN and not vetoed
         if "ause" in keys:
             _, amean, ase, at = summary(paired(pooled_rows, control, cand, "ause"))
             print(f"  pooled AUSE diff {amean:+.3f} (se {ase:.3f}, t {at:+.2f})")
