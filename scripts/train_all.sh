@@ -4,7 +4,7 @@
 # Two phases, because refine.pt is trained on top of another file: it reads siamese-census-sgm's maps (siamese.pt,
 # fixed), the file that phase 1 has just exported. smd.pt's backbone is a committed file, the shipped dispnet.pt's
 # kept copy (docs/experiments/weights/dispnet_long4x.pt, configs/smd.yaml), not this run's dispnet.pt.
-#   phase 1, in parallel: siamese (29 803 steps, 32 min alone on 2 threads) and dispnet (25 916 steps, ~5.3 h alone)
+#   phase 1, in parallel: siamese (29 803 steps, 32 min alone on 2 threads) and dispnet (25 916 steps, ~4.7 h alone)
 #   phase 2, in parallel: smd's head (3 819 steps, 21.5 min alone) and sgm-refine (14 000 steps, 34 min alone)
 # One thread each on a 2-core CPU, so each takes longer than alone (the shipped weights were each trained alone; see
 # stereonet/weights/README.md); every run stops by its steps, so a slower machine only takes longer.
