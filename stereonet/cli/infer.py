@@ -311,15 +311,19 @@ def shift_right(right: torch.Tensor, content: torch.Tensor, min_disp: int) -> tu
 
 
 def content_valid(disp: torch.Tensor, left_content: torch.Tensor, right_content: torch.Tensor) -> torch.Tensor:
-    """Pixels whose left pixel and whose match ``x - d`` in the (matcher's) right image both have source
-    content. disp :math:`(1, 1, H, W)`, masks (H, W) bool -> (1, 1, H, W) bool."""
+    """Pixels whose left pixel has source content and whose match ``x - d`` does not land on padding of the
+    (matcher's) right image. disp :math:`(1, 1, H, W)`, masks (H, W) bool -> (1, 1, H, W) bool.
+
+    A match beyond the right image's border is not padding: whether such a pixel is an answer is the matcher's
+    call (the classical ones reject it, the dense networks extrapolate), as on an unpadded pair, so padding or
+    ``--min-disp`` never changes it."""
     h, w = left_content.shape
     x = torch.arange(w, device=disp.device).view(1, w).expand(h, w)
     d = torch.nan_to_num(disp[0, 0].float(), nan=0.0, posinf=0.0, neginf=0.0)
     xr = torch.round(x - d).long()
     inside = (xr >= 0) & (xr < w)
     rows = torch.arange(h, device=disp.device).view(h, 1).expand(h, w)
-    hit = right_content[rows, xr.clamp(0, w - 1)] & inside
+    hit = right_content[rows, xr.clamp(0, w - 1)] | ~inside
     return (left_content & hit)[None, None]
 
 

@@ -689,3 +689,22 @@ def test_every_prefilter_method_takes_the_option():
             continue  # no shipped weights; it passes its options to sgm's
         out = matchers.match(method, left, left, 8, prefilter="vertical")
         assert out.disparity.shape == (1, 1, 24, 48)
+
+
+def test_content_valid_drops_matches_on_padding_only():
+    """Padding (no source content) is never an answer; a match beyond the right image's border is the matcher's
+    call, as on an unpadded pair (so padding or --min-disp does not change it)."""
+    h, w = 2, 10
+    left_content = torch.ones(h, w, dtype=torch.bool)
+    left_content[:, -1] = False  # the left image's own padding
+    right_content = torch.ones(h, w, dtype=torch.bool)
+    right_content[:, :3] = False  # padding on the right image's left side (shift_right with min_disp 3)
+    disp = torch.zeros(1, 1, h, w)
+    disp[0, 0, 0, 5] = 4.0  # -> x 1: padding
+    disp[0, 0, 0, 2] = 6.0  # -> x -4: beyond the border, not padding
+    disp[0, 0, 1, 8] = 2.0  # -> x 6: content
+    disp[0, 0, 1, 7] = -3.0  # -> x 10: beyond the right border
+    out = infer.content_valid(disp, left_content, right_content)[0, 0]
+    assert not out[0, 5] and out[0, 2] and out[1, 8] and out[1, 7]
+    assert not out[:, 0:3][disp[0, 0, :, 0:3] == 0].any()  # zero disparity onto the padding columns
+    assert not out[:, -1].any()
