@@ -6,7 +6,7 @@ every match 0.5-1 px off the scanline, which is what a matcher must tolerate, no
 Prints the mean bad-2 (eval.py's metrics after the shared fill) of each method under each perturbation.
 Run: python docs/experiments/robustness_probe.py "sgm,sgm:binomial,sgm-refine,opencv-sgbm" "val2ai" [align|jpeg]
 (METHOD:PREFILTER runs the method with that census pre-filter, stereonet.cost.prefilter; "align": the vertical offsets
-with and without stereonet.geometry.align.auto_align before matching)"""
+with and without stereonet.geometry.align.auto_align before matching; "camera": blur, vignetting, noise and JPEG)"""
 import statistics
 import sys
 
@@ -83,6 +83,37 @@ if len(sys.argv) > 3 and sys.argv[3] == "align":  # the offsets with and without
         "right tilted 0-1 px": lambda left, right, g: (left, tilted(right, 1.0)),
         "right tilted 0-1 px, aligned": aligned(lambda left, right, g: (left, tilted(right, 1.0))),
     }
+
+def blurred(img: torch.Tensor, sigma: float) -> torch.Tensor:
+    """``img`` (1, C, H, W) under a Gaussian blur of ``sigma`` px (optics, demosaicing, a slightly wrong focus)."""
+    r = max(1, int(3 * sigma + 0.5))
+    x = torch.arange(-r, r + 1, dtype=img.dtype)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    k = k / k.sum()
+    c = img.shape[1]
+    out = F.conv2d(F.pad(img, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
+    return F.conv2d(F.pad(out, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
+
+
+def vignetted(img: torch.Tensor, corner: float) -> torch.Tensor:
+    """``img`` darkened radially (cos^4-like falloff, ``corner`` of the centre's brightness at the corners)."""
+    _, _, h, w = img.shape
+    ys, xs = torch.meshgrid(torch.linspace(-1, 1, h, dtype=img.dtype), torch.linspace(-1, 1, w, dtype=img.dtype),
+                            indexing="ij")
+    r2 = (xs ** 2 + ys ** 2) / 2.0  # 1 at the corners
+    return img * (1.0 - (1.0 - corner) * r2)
+
+
+if len(sys.argv) > 3 and sys.argv[3] == "camera":  # what a camera does to both views (forty-second session)
+    PERTURBATIONS = {
+        "clean": PERTURBATIONS["clean"],
+        "blur 1 px both": lambda left, right, g: (blurred(left, 1.0), blurred(right, 1.0)),
+        "right blur 1 px": lambda left, right, g: (left, blurred(right, 1.0)),
+        "right vignetting 0.6": lambda left, right, g: (left, vignetted(right, 0.6)),
+        "noise 0.03 both": PERTURBATIONS["noise 0.03 both"],
+        "jpeg 75 both": lambda left, right, g: (jpeg(left, 75), jpeg(right, 75)),
+    }
+
 
 def variant(entry: str) -> str:
     """``METHOD`` (or ``LABEL=METHOD@CHECKPOINT``), or ``METHOD:PREFILTER``: the census pre-filter option set."""
