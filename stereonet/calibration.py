@@ -20,6 +20,7 @@ Formats (``read_calibration`` detects them from the extension and content):
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from collections.abc import Mapping
@@ -107,9 +108,12 @@ def read_middlebury_calibration(path: str | os.PathLike) -> Calibration:
             return default
         text = get(key)
         try:
-            return kind(float(text))
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError(text)
+            return kind(value)
         except ValueError:
-            raise fail(p, f"malformed {key!r}: expected a number, got {text!r}") from None
+            raise fail(p, f"malformed {key!r}: expected a finite number, got {text!r}") from None
 
     K1 = _parse_matrix(get("cam0"), p, "cam0")
     K2 = _parse_matrix(get("cam1"), p, "cam1")
@@ -156,7 +160,7 @@ def read_kitti_calibration(path: str | os.PathLike, cameras: tuple[int, int] = (
         try:
             w, h = (int(round(float(v))) for v in values[s_key].split())
             size = (w, h)
-        except ValueError:
+        except (ValueError, OverflowError):
             raise fail(p, f"malformed {s_key!r}: expected 'width height', got {values[s_key]!r}") from None
     return _build(p, K1, K2, np.eye(3), t_r - t_l, size, doffs=float(K2[0, 2] - K1[0, 2]))
 
@@ -178,6 +182,8 @@ def _node_array(node, path: Path, key: str) -> np.ndarray:
                 vals.append(item.real())
             else:
                 raise fail(path, f"malformed {key!r}: expected numbers")
+        if len({len(v) if isinstance(v, list) else -1 for v in vals}) > 1:
+            raise fail(path, f"malformed {key!r}: expected rows of equal length (a matrix)")
         return np.asarray(vals, dtype=np.float64)
     if node.isReal() or node.isInt():
         return np.asarray([node.real()], dtype=np.float64)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields, replace
 
 import torch
@@ -100,6 +101,14 @@ class Calibration:
             v = getattr(self, name)
             if v is not None:
                 setattr(self, name, torch.as_tensor(v, dtype=torch.float64).reshape(-1))
+        if not math.isfinite(float(self.doffs)):
+            raise StereoInputError(f"doffs: expected a finite number of pixels, got {self.doffs}")
+        self.doffs = float(self.doffs)
+        if self.ndisp is not None:
+            if not float(self.ndisp) == int(self.ndisp) or int(self.ndisp) < 0:
+                raise StereoInputError(f"ndisp: expected a whole number of disparities >= 0 (0 = unknown), "
+                                       f"got {self.ndisp}")
+            self.ndisp = int(self.ndisp) or None
         if self.image_size is not None:
             w, h = (int(x) for x in self.image_size)
             if w <= 0 or h <= 0:

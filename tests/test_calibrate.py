@@ -332,3 +332,9 @@ def test_missing_folder(tmp_path, capsys):
     code, _, err = run(capsys, tmp_path / "nope", tmp_path / "nope2", "--board", "9x6", "--square", SQUARE,
                        "-o", tmp_path / "out.yaml")
     assert_refused(code, err, tmp_path, "LEFT", "nope")
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (12, 40), (40, 12)])
+def test_detect_board_finds_nothing_in_an_image_too_small_to_show_it(shape):
+    board = Board(9, 6, 25.0)
+    assert detect_board(board, np.full(shape, 128, np.uint8)) is None  # not an OpenCV assertion

@@ -125,6 +125,11 @@ size: [ 640, 480 ]
     ("c.yml", "K1: [1, 0\n", r"c\.yml: cannot parse"),
     ("c.txt", "hello\n", r"c\.txt: unknown calibration format"),
     ("calib.txt", MIDDLEBURY.replace("cam0=[4152.073", "cam0=[0"), r"calib\.txt: invalid calibration: K1"),
+    ("calib.txt", MIDDLEBURY.replace("ndisp=280", "ndisp=inf"), r"malformed 'ndisp': expected a finite number"),
+    ("calib.txt", MIDDLEBURY.replace("doffs=213.084", "doffs=nan"), r"malformed 'doffs': expected a finite number"),
+    ("calib.txt", MIDDLEBURY.replace("ndisp=280", "ndisp=-16"), r"invalid calibration: ndisp"),
+    ("c.yml", "K1: [[1, 0, 0], [0, 1, 0], [0, 0]]\nK2: [1, 0, 0, 0, 1, 0, 0, 0, 1]\nR: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n"
+              "T: [1, 0, 0]\n", r"malformed 'K1': expected rows of equal length"),
 ])
 def test_malformed_files_name_file_and_key(tmp_path, name, content, msg):
     (tmp_path / name).write_text(content)

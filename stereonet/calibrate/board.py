@@ -93,6 +93,10 @@ class Board:
                                       dictionary)
 
 
+MIN_DETECT_SIDE = 16
+"""px: a smaller image cannot show a board (three pixels per square at least); :func:`detect_board` finds none."""
+
+
 class Detection(NamedTuple):
     """Corners of a board found in one image: ``ids`` :math:`(N,)` int into ``Board.object_points()`` and
     their sub-pixel positions ``points`` :math:`(N, 2)` float32 (pixel centres at integer coordinates)."""
@@ -114,6 +118,8 @@ def detect_board(board: Board, gray: np.ndarray) -> Detection | None:
     gray = np.asarray(gray)
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise StereoInputError(f"gray: expected a uint8 (H, W) image, got {gray.dtype} {gray.shape}")
+    if min(gray.shape) < MIN_DETECT_SIDE or min(gray.shape) < 3 * (min(board.rows, board.cols) + 1):
+        return None  # too small to show the board (and below what OpenCV's adaptive threshold accepts)
     if board.dictionary is not None:
         corners, ids, _, _ = cv2.aruco.CharucoDetector(board.charuco()).detectBoard(gray)
         if ids is None or len(ids) < MIN_CHARUCO_CORNERS:

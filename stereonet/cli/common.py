@@ -20,7 +20,7 @@ from stereonet.measure import (
 )
 
 __all__ = ["USER_ERRORS", "OneLineParser", "PeakMemory", "Stopwatch", "add_malloc_argument", "apply_malloc_argument",
-           "fail", "max_rss_bytes", "release_free_memory", "reuse_freed_memory", "rss_bytes", "weights_available"]
+           "check_output_path", "fail", "max_rss_bytes", "release_free_memory", "reuse_freed_memory", "rss_bytes", "weights_available"]
 
 # Errors that come from the user's input: bad arguments, specs, names or file contents (StereoInputError,
 # which every check of a public function raises) and file-system errors: one line, exit code 2. Anything else
@@ -48,6 +48,23 @@ def apply_malloc_argument(args: argparse.Namespace) -> None:
     """Act on :func:`add_malloc_argument`'s option."""
     if args.malloc == "reuse":
         reuse_freed_memory()
+
+
+def check_output_path(path, arg: str, folder: bool) -> None:
+    """Before any work: ``path`` (what option ``arg`` names) can be written as a file (``folder=False``) or a folder:
+    it is not an existing entry of the other kind, and its nearest existing parent is a folder (the missing ones are
+    created when the output is written). A one-line :class:`StereoInputError` naming ``arg`` otherwise."""
+    from pathlib import Path
+
+    path = Path(path)
+    if path.exists() and path.is_dir() != folder:
+        raise StereoInputError(f"{arg}: expected a {'folder' if folder else 'file'}, got the existing "
+                               f"{'file' if folder else 'folder'} {path}")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise StereoInputError(f"{arg}: {parent} is a file, so {path} cannot be written")
 
 
 def fail(prog: str, message: object, code: int = 2) -> int:

@@ -48,7 +48,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from stereonet.checks import StereoInputError
-from stereonet.cli.common import USER_ERRORS, OneLineParser, fail
+from stereonet.cli.common import USER_ERRORS, OneLineParser, check_output_path, fail
 from stereonet.evaluation import (  # noqa: F401 - the engine (a library module), re-exported for callers
     METRICS,
     Evaluation,
@@ -115,6 +115,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise StereoInputError(f"--budget: expected a positive number of seconds, got {args.budget}")
         if args.memory_budget is not None and not args.memory_budget > 0:
             raise StereoInputError(f"--memory-budget: expected a positive number of MiB, got {args.memory_budget}")
+        if args.json is not None:  # checked now, not after the whole run
+            check_output_path(args.json, "--json", folder=False)
+        if args.plots is not None:
+            check_output_path(args.plots, "--plots", folder=True)
         ev = run_evaluation(methods, specs, args.max_disp, args.fill, shard, args.plots, not args.no_progress,
                             budget=args.budget, memory_budget=args.memory_budget, align=args.align)
     except USER_ERRORS as e:

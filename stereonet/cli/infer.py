@@ -50,7 +50,14 @@ import numpy as np
 import torch
 
 from stereonet.checks import StereoInputError
-from stereonet.cli.common import USER_ERRORS, OneLineParser, Stopwatch, fail, weights_available
+from stereonet.cli.common import (
+    USER_ERRORS,
+    OneLineParser,
+    Stopwatch,
+    check_output_path,
+    fail,
+    weights_available,
+)
 from stereonet.measure import reuse_freed_memory
 from stereonet.tiling import DEFAULT_BUDGET_MIB
 
@@ -144,6 +151,11 @@ def find_pairs(left: str, right: str) -> list[Pair]:
         return [Pair(lp, rp, f"frame_{i:06d}", frame=i) for i in range(n)]
     if lp.is_file() and rp.is_file():
         return [Pair(lp, rp, "")]
+
+    if lp.is_file() != rp.is_file() and (lp.is_dir() or rp.is_dir()):
+        file_arg, folder_arg = ("LEFT", "RIGHT") if lp.is_file() else ("RIGHT", "LEFT")
+        raise StereoInputError(f"{file_arg}: expected a folder or glob like {folder_arg} (one pair: two files), "
+                               f"got the file {lp if lp.is_file() else rp}")
 
     def listing(arg: str, p: Path, which: str) -> list[Path]:
         if p.is_dir():
@@ -499,6 +511,12 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     min_disp = int(st.min_disp)
     if min_disp >= max_disp:
         raise StereoInputError(f"--min-disp: expected less than the maximum disparity {max_disp}, got {min_disp}")
+    if width < 2:
+        raise StereoInputError(f"LEFT: expected an image at least 2 px wide to match, got {width} px"
+                               + (f" after --scale {st.scale}" if st.scale != 1 else ""))
+    if max_disp - min_disp >= width:
+        raise StereoInputError(f"--max-disp/--min-disp: expected a search range (max - min = {max_disp - min_disp} "
+                               f"px) narrower than the image ({width} px wide as matched)")
     info["min_disp"] = min_disp
     if min_disp:
         right, right_content = shift_right(right, right_content, min_disp)
@@ -767,6 +785,19 @@ def calibration_unit(path: Path) -> str | None:
     return m.group(1) if m else None
 
 
+def _make_parents(out: Path) -> list[Path]:
+    """Create the missing parent folders of ``-o`` and return them deepest first (so that a failed run can remove
+    them again); a one-line error when ``-o`` or one of its parents is an existing file."""
+    check_output_path(out, "-o", folder=True)
+    missing = []
+    parent = out.parent
+    while not parent.exists():
+        missing.append(parent)
+        parent = parent.parent
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return missing
+
+
 def _publish(tmp: Path, out: Path) -> None:
     """Move the finished temporary folder to ``out`` (replacing an old ``out`` only now, when all is done)."""
     old = None
@@ -788,7 +819,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ImportError as e:
         return fail(PROG, f"{e} (this part of stereonet is not installed)")
     out = args.out.resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        created = _make_parents(out)
+    except USER_ERRORS as e:
+        return fail(PROG, e)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     failures: list[str] = []
     settings = Settings(fill=args.fill, scale=args.scale, min_disp=args.min_disp, alpha=args.alpha, unit=args.unit,
@@ -815,6 +849,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         _publish(tmp, out)
     except BaseException as e:  # nothing half-written: the temporary folder goes, OUT is untouched
         shutil.rmtree(tmp, ignore_errors=True)
+        for folder in created:  # the parents this call made, deepest first, if still empty
+            try:
+                folder.rmdir()
+            except OSError:
+                break
         if isinstance(e, USER_ERRORS):
             return fail(PROG, e)
         if isinstance(e, ImportError):

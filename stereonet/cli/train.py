@@ -11,13 +11,25 @@ callback and atomic checkpoint writes; seeds are fixed by ``seed_everything`` (d
 
 from __future__ import annotations
 
-from lightning.pytorch.cli import LightningCLI
+import sys
+
+from lightning.pytorch.cli import LightningArgumentParser, LightningCLI
 
 from stereonet.checks import StereoInputError
 from stereonet.cli.common import fail
 from stereonet.training.callbacks import AtomicCheckpointIO, CurriculumCallback
 from stereonet.training.data import SyntheticStereoDataModule
 from stereonet.training.module import StereoModule
+
+
+class OneLineArgumentParser(LightningArgumentParser):
+    """LightningCLI's parser, reporting a usage error (a missing config file, a misspelt key) as one line,
+    ``train.py: error: ...``, exit 2, instead of the usage text, a tip and the error."""
+
+    def error(self, message: str, ex: Exception | None = None):
+        if not self.exit_on_error:  # a caller that asked for the exception gets it
+            return super().error(message, ex)
+        sys.exit(fail("train.py", f"{message} (see --help)"))
 
 
 class StereoCLI(LightningCLI):
@@ -46,6 +58,7 @@ def _cli(args: list[str] | None, run: bool) -> StereoCLI:
     return StereoCLI(
         StereoModule,
         SyntheticStereoDataModule,
+        parser_class=OneLineArgumentParser,
         subclass_mode_model=True,
         seed_everything_default=0,
         save_config_kwargs={"overwrite": True},

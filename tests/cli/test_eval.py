@@ -292,3 +292,18 @@ def test_align_removes_a_residual_vertical_offset_before_every_method(capsys):
             assert b.metrics["bad1"] <= a.metrics["bad1"] - margin, (a.method, a.metrics["bad1"], b.metrics["bad1"])
         else:
             assert b.metrics == a.metrics
+
+
+def test_output_paths_are_checked_before_the_run(tmp_path, capsys, monkeypatch):
+    def no_run(*a, **k):
+        raise AssertionError("the evaluation ran before --json/--plots were checked")
+
+    monkeypatch.setattr(ev, "run_evaluation", no_run)
+    a_file = tmp_path / "f.png"
+    a_file.write_text("x")
+    for args, needle in ((["--json", str(tmp_path)], "--json"), (["--plots", str(a_file)], "--plots"),
+                         (["--json", str(a_file / "rows.json")], "--json")):
+        code = ev.main(["--methods", "opencv-bm", "--data", "synthetic:1", *args])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and lines[0].startswith(f"eval.py: error: {needle}"), lines
+

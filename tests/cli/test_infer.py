@@ -708,3 +708,39 @@ def test_content_valid_drops_matches_on_padding_only():
     assert not out[0, 5] and out[0, 2] and out[1, 8] and out[1, 7]
     assert not out[:, 0:3][disp[0, 0, :, 0:3] == 0].any()  # zero disparity onto the padding columns
     assert not out[:, -1].any()
+
+
+def test_output_under_an_existing_file_is_one_line(pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    code, err = run_main(capsys, lp, rp, "-o", lp / "out", "--method", "sgm", "--max-disp", "16")
+    assert code == 2 and "-o" in one_line_error(err)
+    code, err = run_main(capsys, lp, rp, "-o", lp, "--method", "sgm", "--max-disp", "16")  # OUT itself a file
+    assert code == 2 and "-o" in one_line_error(err) and lp.is_file()
+
+
+def test_bad_input_leaves_no_new_parent_folders(pair_files, tmp_path, capsys):
+    _, rp = pair_files
+    fake = tmp_path / "fake.png"
+    fake.write_text("not an image")
+    code, err = run_main(capsys, fake, rp, "-o", tmp_path / "new1" / "new2" / "out", "--method", "sgm",
+                         "--max-disp", "16")
+    assert code == 2 and one_line_error(err)
+    assert not (tmp_path / "new1").exists()
+
+
+def test_left_folder_with_right_file_names_the_file(pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    folder = tmp_path / "lefts"
+    folder.mkdir()
+    (folder / "a.png").write_bytes(lp.read_bytes())
+    code, err = run_main(capsys, folder, rp, "-o", tmp_path / "out", "--method", "sgm", "--max-disp", "16")
+    line = one_line_error(err)
+    assert code == 2 and line.startswith("infer.py: error: RIGHT: expected a folder or glob") and str(rp) in line
+
+
+@pytest.mark.parametrize("extra", [["--max-disp", "200"], ["--max-disp", "16", "--min-disp", "-150"]])
+def test_search_range_wider_than_the_image_names_the_options(pair_files, tmp_path, capsys, extra):
+    lp, rp = pair_files  # 160 px wide
+    code, err = run_main(capsys, lp, rp, "-o", tmp_path / "out", "--method", "sgm", *extra)
+    assert code == 2 and "--max-disp/--min-disp" in one_line_error(err)
+    assert not (tmp_path / "out").exists()

@@ -112,3 +112,21 @@ def test_bad_train_spec_is_one_line_exit_2(tmp_path, monkeypatch, capsys, case):
     assert len(err) == 1 and err[0].startswith("train.py: error: --data.train"), err
     assert {"no-gt": "ground-truth", "missing": "does not exist", "synthetic": "data_gen", "too-small": "smaller",
             "ratio": "share"}[case] in err[0]
+
+
+@pytest.mark.parametrize("case", ["missing-config", "misspelt-key"])
+def test_config_usage_errors_are_one_line(tmp_path, monkeypatch, capsys, case):
+    from stereonet.cli.train import main
+
+    if case == "missing-config":
+        args, needle = ["--config", str(tmp_path / "nope.yaml")], "does not exist"
+    else:
+        text = Path(CONFIG[1]).read_text().replace("batch_size:", "batch_sise:")
+        (tmp_path / "typo.yaml").write_text(text)
+        args, needle = ["--config", str(tmp_path / "typo.yaml")], "batch_sise"
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e, mock.patch.object(sys, "argv", ["train.py"]):
+        main(args, run=False)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("train.py: error:") and needle in err[0], err
