@@ -43,6 +43,7 @@ any failed, 2 for bad input (unknown method, missing dataset...), which is repor
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -130,6 +131,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for dataset, pair, offset in ev.aligned:
         print(f"{PROG}: note: {dataset}/{pair}: right view aligned (residual vertical offset up to {offset:.2f} px)",
               file=sys.stderr)
+    scored = {p.dataset for p in ev.pairs if p.metrics and not math.isnan(p.metrics.get("bad2", math.nan))}
+    for dataset in dict.fromkeys(p.dataset for p in ev.pairs if p.metrics is not None and p.dataset not in scored):
+        print(f"{PROG}: note: {dataset} has no ground truth; only times and memory are reported", file=sys.stderr)
     print(format_table(ev.rows))
     if args.json is not None:
         write_json(args.json, ev.rows)

@@ -307,3 +307,16 @@ def test_output_paths_are_checked_before_the_run(tmp_path, capsys, monkeypatch):
         lines = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(lines) == 1 and lines[0].startswith(f"eval.py: error: {needle}"), lines
 
+
+
+def test_a_folder_without_ground_truth_is_noted(tmp_path, capsys):
+    import cv2
+
+    rng = np.random.default_rng(0)
+    img = (rng.random((40, 64)) * 255).astype(np.uint8)
+    for side, im in (("left", img), ("right", np.roll(img, -3, 1))):
+        (tmp_path / side).mkdir()
+        cv2.imwrite(str(tmp_path / side / "p.png"), im)
+    assert ev.main(["--methods", "opencv-bm", "--data", f"folder:{tmp_path}", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "has no ground truth; only times and memory are reported" in err
