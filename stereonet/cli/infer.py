@@ -401,6 +401,35 @@ def align_vertically(left, right, right_content, pl: np.ndarray, pr: np.ndarray,
     return right, right_content, pr
 
 
+def rectified_pair_warnings(pl: np.ndarray, pr: np.ndarray, info: dict, negative_allowed: bool = False) -> list[str]:
+    """What the SIFT matches ``pl``/``pr`` (after any vertical alignment) say about a pair given as rectified:
+    rows that still disagree (it needs --calib or --uncalibrated), matches that mostly lie to the right in the
+    second image (LEFT and RIGHT swapped: every disparity would be negative; not with ``negative_allowed``, i.e. a
+    negative --min-disp), or too few matches to check.
+    Sets ``info["epipolar_median_row_error_px"]`` (None when unchecked)."""
+    info["epipolar_median_row_error_px"] = None
+    if len(pl) < MIN_MATCHES:
+        return [f"only {len(pl)} SIFT matches (fewer than {MIN_MATCHES}): rectification, the vertical alignment and "
+                "the order of the views could not be checked"]
+    warnings = []
+    row_error = float(np.median(np.abs(pl[:, 1] - pr[:, 1])))
+    info["epipolar_median_row_error_px"] = row_error
+    if row_error > 1.0:
+        what = "after the vertical alignment, " if (info.get("vertical_offset") or {}).get("corrected") else ""
+        warnings.append(f"the pair looks unrectified: {what}SIFT matches are {row_error:.1f} px off-row (median); "
+                        "pass --calib FILE or --uncalibrated to rectify it first")
+    dx = pl[:, 0] - pr[:, 0]
+    if not negative_allowed and float(np.mean(dx < -0.5)) >= SWAPPED_SHARE:
+        warnings.append(f"LEFT and RIGHT look swapped: {100 * float(np.mean(dx < -0.5)):.0f} % of the SIFT matches lie "
+                        f"further right in RIGHT (median disparity {float(np.median(dx)):.1f} px); pass the images in "
+                        "the other order (or --min-disp for a pair with negative disparities)")
+    return warnings
+
+
+SWAPPED_SHARE = 0.8
+"""Share of SIFT matches with a negative disparity above which a pair given as rectified looks swapped."""
+
+
 def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp: int | None,
                  calib, calib_path: Path | None, uncalibrated: bool, device: torch.device,
                  fill: bool = False, settings: Settings | None = None) -> dict:
@@ -432,6 +461,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         if uncalibrated:
             rect = geometry.rectify_uncalibrated(left, right, alpha=st.alpha)
             info["rectified"] = "uncalibrated (SIFT + robust F)"
+            info["warnings"].extend(getattr(rect, "notes", None) or [])
             depth_calib = None
         else:
             key = ("calibrated", h, w, st.alpha)  # one --calib for the whole batch: a fixed rig
@@ -460,17 +490,14 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         write_image(out_dir / "epipolar_check.png", epipolar_check_image(left, right, pl, pr))
         if len(pl):
             info["epipolar_median_row_error_px"] = float(np.median(np.abs(pl[:, 1] - pr[:, 1])))
-    else:  # given as rectified: say so when SIFT matches disagree
+        given_rectified = False
+    else:  # given as rectified: checked against its SIFT matches below
         pl, pr = sift_matches(left, right)
-        if len(pl) >= MIN_MATCHES:
-            row_error = float(np.median(np.abs(pl[:, 1] - pr[:, 1])))
-            info["epipolar_median_row_error_px"] = row_error
-            if row_error > 1.0:
-                info["warnings"].append(
-                    f"the pair looks unrectified: SIFT matches are {row_error:.1f} px off-row (median); "
-                    "pass --calib FILE or --uncalibrated to rectify it first")
+        given_rectified = True
     if st.align:
         right, right_content, pr = align_vertically(left, right, right_content, pl, pr, max_disp, info, pair)
+    if given_rectified:
+        info["warnings"].extend(rectified_pair_warnings(pl, pr, info, negative_allowed=st.min_disp < 0))
     # a rig whose second camera sits on the left: matches lie at x + d, so the pair is matched mirrored
     # (both images flipped left-right: the first stays the reference, the outputs stay upright)
     from stereonet.geometry import is_reversed_rig
@@ -592,7 +619,12 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         unit = st.unit or "unit of the calibration's baseline (unknown: pass --unit)"
         info["units"]["depth"] = unit
         if st.unit is not None:
-            mm = (depth[0, 0] * MM_PER_UNIT[st.unit]).round().clamp(0, 65535)
+            mm = (depth[0, 0] * MM_PER_UNIT[st.unit]).round()
+            far = int((mm > 65535).sum())
+            if far:  # 65535 would read as a real 65.5 m: beyond the format's range is "no depth" there
+                info["warnings"].append(f"depth_mm.png: {far} pixels lie beyond 65.535 m, the uint16 format's range, "
+                                        "and are written as 0 = no depth (depth.pfm has them)")
+            mm = torch.where(mm > 65535, torch.zeros_like(mm), mm).clamp(min=0)
             from stereonet.io.atomic import atomic_write_bytes
             from stereonet.io.image import encode_image
 
@@ -727,6 +759,16 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
     except (RuntimeError, AssertionError) as e:
         raise StereoInputError(f"--device: {args.device!r} is not usable here ({str(e).splitlines()[0]})") from None
     pairs = find_pairs(args.left, args.right)
+    out = args.out.resolve()
+    inputs = [p for pair in pairs for p in (pair.left, pair.right)] + [
+        p for p in (args.calib, args.checkpoint) if p is not None]
+    for p in inputs:  # --overwrite replaces OUT as a whole: never a folder that holds an input
+        if p.resolve() == out or out in p.resolve().parents:
+            raise StereoInputError(f"-o: {args.out} holds the input {p}; replacing it would delete the input "
+                                   "(choose another output folder)")
+    for pair in pairs:
+        if pair.frame is None and pair.left.resolve() == pair.right.resolve():
+            raise StereoInputError(f"RIGHT: expected a second view, got the same file as LEFT ({pair.left})")
     method = args.method or default_method()
     spec = matchers.spec(method)
     options: dict = backend_options(args, method, spec)
@@ -785,6 +827,14 @@ def calibration_unit(path: Path) -> str | None:
     return m.group(1) if m else None
 
 
+def _umask() -> int:
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _make_parents(out: Path) -> list[Path]:
     """Create the missing parent folders of ``-o`` and return them deepest first (so that a failed run can remove
     them again); a one-line error when ``-o`` or one of its parents is an existing file."""
@@ -824,6 +874,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except USER_ERRORS as e:
         return fail(PROG, e)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    tmp.chmod(0o777 & ~_umask())  # mkdtemp's folder is private (0700); OUT gets a folder's usual mode
     failures: list[str] = []
     settings = Settings(fill=args.fill, scale=args.scale, min_disp=args.min_disp, alpha=args.alpha, unit=args.unit,
                         cloud_frame=args.cloud_frame, output_scale=args.output_scale,

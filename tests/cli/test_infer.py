@@ -331,15 +331,26 @@ def test_unrectified_pair_given_as_rectified_warns(tmp_path, capsys):
     cv2.imwrite(str(lp), left)
     cv2.imwrite(str(rp), right)
     out = tmp_path / "out"
-    code, err = run_main(capsys, lp, rp, "-o", out, "--method", "opencv-sgbm", "--max-disp", "16")
+    code, err = run_main(capsys, lp, rp, "-o", out, "--method", "opencv-sgbm", "--max-disp", "16", "--no-align")
     assert code == 0
     assert "warning" in err and "off-row" in err
     info = json.loads((out / "info.json").read_text())
     assert info["epipolar_median_row_error_px"] == pytest.approx(4, abs=0.5)
     assert any("--calib" in w for w in info["warnings"])
-    code, err = run_main(capsys, *map(str, (lp, lp)), "-o", tmp_path / "same", "--method", "opencv-sgbm",
-                         "--max-disp", "16")
+    # the same pair with the vertical alignment (the default): the offset is corrected, so no stale warning
+    code, err = run_main(capsys, lp, rp, "-o", tmp_path / "aligned", "--method", "opencv-sgbm", "--max-disp", "16")
+    info = json.loads((tmp_path / "aligned" / "info.json").read_text())
+    assert code == 0 and info["vertical_offset"]["corrected"] and "looks unrectified" not in err
+    assert info["epipolar_median_row_error_px"] < 0.5 and not any("--calib" in w for w in info["warnings"])
+    cv2.imwrite(str(rp), textured_pair(h=160, w=200)[1])  # rectified: no warning
+    code, err = run_main(capsys, lp, rp, "-o", tmp_path / "rectified", "--method", "opencv-sgbm", "--max-disp", "16")
     assert code == 0 and "warning" not in err
+    # the same pair in the other order: every match lies to the right in RIGHT
+    code, err = run_main(capsys, rp, lp, "-o", tmp_path / "swapped", "--method", "opencv-sgbm", "--max-disp", "16")
+    assert code == 0 and "look swapped" in err
+    code, err = run_main(capsys, rp, lp, "-o", tmp_path / "negative", "--method", "sgm", "--min-disp", "-16",
+                         "--max-disp", "8")
+    assert code == 0 and "look swapped" not in err  # negative disparities asked for
 
 
 def test_unrectified_rig_padding_alpha_and_rectified_calibration(tmp_path, capsys):
@@ -744,3 +755,37 @@ def test_search_range_wider_than_the_image_names_the_options(pair_files, tmp_pat
     code, err = run_main(capsys, lp, rp, "-o", tmp_path / "out", "--method", "sgm", *extra)
     assert code == 2 and "--max-disp/--min-disp" in one_line_error(err)
     assert not (tmp_path / "out").exists()
+
+
+def test_inputs_inside_out_or_twice_are_refused(pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    code, err = run_main(capsys, lp, rp, "-o", tmp_path, "--overwrite", "--method", "sgm", "--max-disp", "16")
+    assert code == 2 and "holds the input" in one_line_error(err) and lp.is_file() and rp.is_file()
+    code, err = run_main(capsys, lp, lp, "-o", tmp_path / "out", "--method", "sgm", "--max-disp", "16")
+    assert code == 2 and "same file as LEFT" in one_line_error(err) and not (tmp_path / "out").exists()
+
+
+def test_output_folder_has_the_usual_mode(pair_files, tmp_path, capsys):
+    import os
+
+    lp, rp = pair_files
+    code, _ = run_main(capsys, lp, rp, "-o", tmp_path / "out", "--method", "bm-sad", "--max-disp", "16")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert code == 0 and (tmp_path / "out").stat().st_mode & 0o777 == 0o777 & ~mask
+
+
+def test_depth_beyond_the_uint16_range_is_no_depth(tmp_path, capsys):
+    from stereonet.io import read_array
+
+    left, right = textured_pair()
+    lp, rp = tmp_path / "l.png", tmp_path / "r.png"
+    cv2.imwrite(str(lp), left)
+    cv2.imwrite(str(rp), right)
+    calib = tmp_path / "calib.txt"  # baseline 2 km: every depth (f B / d ~ 33 km) beyond 65.535 m
+    calib.write_text(write_calib(tmp_path / "c.txt").read_text().replace(f"baseline={BASELINE}", "baseline=2000"))
+    code, err = run_main(capsys, lp, rp, "-o", tmp_path / "out", "--calib", calib, "--unit", "m", "--method", "sgm",
+                         "--max-disp", "16")
+    assert code == 0 and "beyond 65.535 m" in err
+    assert (read_array(tmp_path / "out" / "depth_mm.png") == 0).all()
+
