@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import math
 from collections.abc import Iterator, Sequence
 
 import torch
@@ -118,7 +119,8 @@ def check_image_pair(left: object, right: object, channels: Sequence[int] = (1, 
 
 def check_max_disp(max_disp: object, width: int, name: str = "max_disp") -> int:
     """Check a disparity range: an integer with ``0 < max_disp < width``."""
-    if isinstance(max_disp, bool) or not isinstance(max_disp, int | float) or int(max_disp) != max_disp:
+    if isinstance(max_disp, bool) or not isinstance(max_disp, int | float) or not math.isfinite(max_disp) \
+            or int(max_disp) != max_disp:
         raise TypeError(f"{name}: expected a positive integer, got {max_disp!r}")
     max_disp = int(max_disp)
     if max_disp <= 0 or max_disp >= width:

@@ -40,7 +40,8 @@ def use_numba(*tensors: torch.Tensor, backend: str = "auto", float32_only: bool 
 
     ``"numba"``: always (the caller converts to float32 CPU arrays); ``"torch"``: never; ``"auto"``: when
     every tensor is on the CPU, none needs a gradient (the kernels are not differentiable) and, with
-    ``float32_only``, every tensor is float32 (kernels that compute in float32 and cast back pass False).
+    ``float32_only``, every tensor is float32 (kernels that compute in float32 and cast back pass False; they
+    still take floating tensors in float32 or float64 only: half precision runs the torch reference).
     """
     if backend not in BACKENDS:
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
@@ -48,7 +49,8 @@ def use_numba(*tensors: torch.Tensor, backend: str = "auto", float32_only: bool 
         return backend == "numba"
     grad = torch.is_grad_enabled()
     return all(t.device.type == "cpu" and not (grad and t.requires_grad)
-               and (not float32_only or t.dtype == torch.float32) for t in tensors)
+               and (t.dtype == torch.float32 if float32_only else
+                    t.dtype in (torch.float32, torch.float64) or not t.is_floating_point()) for t in tensors)
 
 
 _MADV_NOHUGEPAGE = 15  # Linux (asm-generic/mman-common.h)

@@ -277,6 +277,8 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
         raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
     if lr_uncertainty not in ("fill", "one"):
         raise StereoInputError(f"lr_uncertainty: expected 'fill' or 'one', got {lr_uncertainty!r}")
+    if isinstance(upsample, bool) or not isinstance(upsample, int | float) or not 0 < upsample < float("inf"):
+        raise StereoInputError(f"upsample: expected a finite output scale > 0 (1 = the input grid), got {upsample!r}")
     check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     graph = network_graph("smd", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]

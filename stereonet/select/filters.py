@@ -78,7 +78,7 @@ def speckle_filter(disp: torch.Tensor, valid: torch.Tensor, max_size: int = 100,
     """
     dims = check_shape(disp, ["B", "1", "H", "W"], "disp")
     check_shape(valid, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "valid")
-    if max_size < 0 or max_diff < 0:
+    if not (max_size >= 0 and max_diff >= 0):  # NaN fails too
         raise StereoInputError(f"max_size/max_diff: expected non-negative values, got {max_size}, {max_diff}")
     if max_size == 0:
         return valid.clone()
@@ -171,6 +171,8 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         raise StereoInputError(f"band: expected an integer >= 0 pixels (or None = radius), got {band!r}")
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
+    if not bool(torch.isfinite(guide).all()):  # the kernel's colour weights assume finite guide values
+        raise StereoInputError("guide: expected finite values, got NaN or inf")
     valid = torch.isfinite(disp) if valid is None else valid & torch.isfinite(disp)  # NaN and inf never vote
     votes = disp[valid]
     span = float(votes.max() - votes.min()) if votes.numel() else 0.0

@@ -111,8 +111,12 @@ def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: flo
     """
     dims = check_shape(disp_left, ["B", "1", "H", "W"], "disp_left")
     check_shape(disp_right, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "disp_right")
-    if tol < 0:
-        raise StereoInputError(f"tol: expected a non-negative tolerance, got {tol}")
+    try:
+        ok = not isinstance(tol, bool | str) and float(tol) >= 0  # NaN fails too
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise StereoInputError(f"tol: expected a non-negative tolerance in pixels, got {tol!r}")
     diff, inside, idx = _difference(disp_left, disp_right)
     consistent = inside & (diff <= tol)
     if valid_right is not None:

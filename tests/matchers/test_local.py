@@ -80,3 +80,36 @@ def test_options_use_opencv_names_and_units():
                      ("speckle_size", "speckle_window"), ("speckle_diff", "speckle_range"), ("window", "block_size")]:
         with pytest.raises(StereoInputError, match=f"{old}: this option is called {new}"):
             matchers.match("sgm", left, right, 8, **{old: 1})
+
+
+@pytest.mark.parametrize("method, options, needle", [
+    ("sgm", {"disp12_max_diff": float("nan")}, "disp12_max_diff"),  # NaN used to switch the check off silently
+    ("bm-sad", {"disp12_max_diff": "1"}, "disp12_max_diff"),
+    ("sgm", {"speckle_range": float("nan")}, "speckle_range"),  # NaN used to reject every pixel
+    ("bm-sad", {"uniqueness_ratio": "abc"}, "uniqueness_ratio"),
+    ("sgm", {"uniqueness_ratio": None}, "uniqueness_ratio"),
+    ("siamese-sgm", {"disp12_max_diff": float("nan")}, "tol"),
+])
+def test_nan_or_non_numeric_back_end_options_are_one_line_errors(method, options, needle):
+    from stereonet.checks import StereoInputError
+    from stereonet.matchers import match
+
+    left = torch.rand(1, 3, 24, 48, generator=torch.Generator().manual_seed(0))
+    with pytest.raises(StereoInputError, match=needle):
+        match(method, left, torch.roll(left, -2, -1), 8, **options)
+
+
+@pytest.mark.parametrize("method", ["sgm", "bp", "sgm-refine"])
+def test_half_precision_images_run_the_torch_reference(method):
+    """float16 / bfloat16 pass the image checks; the compiled kernels take float32/float64, so these run in torch
+    (they used to fail inside numba)."""
+    from stereonet.matchers import match
+
+    left = torch.rand(1, 3, 24, 48, generator=torch.Generator().manual_seed(0))
+    right = torch.roll(left, -2, -1)
+    ref = match(method, left, right, 8).disparity
+    for dtype in (torch.float16, torch.bfloat16):
+        out = match(method, left.to(dtype), right.to(dtype), 8).disparity
+        assert out.dtype == dtype
+        both = torch.isfinite(out.float()) & torch.isfinite(ref)
+        assert float((out.float() - ref)[both].abs().median()) < 0.05

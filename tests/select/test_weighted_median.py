@@ -126,3 +126,17 @@ def test_absurd_values_do_not_size_the_histogram():
     out = weighted_median_filter(disp, guide, radius=4, sigma_color=0.1)
     assert torch.equal(out, weighted_median_filter(disp, guide, radius=4, sigma_color=0.1, backend="torch"))
     assert out[0, 0, 3, 3] < 20  # its neighbours outvote it
+
+
+def test_a_non_finite_guide_is_a_one_line_error():
+    """The numba kernel's colour weights assume a finite guide (a NaN used to crash the process)."""
+    from stereonet.checks import StereoInputError
+    from stereonet.select.filters import weighted_median_filter
+    from stereonet.select.lr_check import left_right_check
+
+    guide = torch.rand(1, 3, 24, 48)
+    guide[0, 0, 5, 5] = float("nan")
+    with pytest.raises(StereoInputError, match="guide"):
+        weighted_median_filter(torch.rand(1, 1, 24, 48) * 8, guide)
+    with pytest.raises(StereoInputError, match="tol"):
+        left_right_check(torch.rand(1, 1, 8, 8), torch.rand(1, 1, 8, 8), tol=float("nan"))
