@@ -192,6 +192,18 @@ def _fit_to_frame(
     )
 
 
+def _check_image_size(image_size: object) -> tuple[int, int]:
+    """``(width, height)``: two positive integers; a one-line error naming ``image_size`` otherwise."""
+    try:
+        w, h = image_size  # type: ignore[misc]
+        ok = all(not isinstance(v, bool) and int(v) == v and v > 0 for v in (w, h))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise StereoInputError(f"image_size: expected (width, height), two positive integers, got {image_size!r}")
+    return int(w), int(h)
+
+
 def _check_alpha(alpha: float) -> float:
     if not (isinstance(alpha, int | float) and 0.0 <= float(alpha) <= 1.0):
         raise StereoInputError(f"alpha: expected a number in [0, 1], got {alpha!r}")
@@ -602,7 +614,7 @@ def stereo_rectify_uncalibrated(
         DegenerateGeometryError: fewer than ``min_matches`` matches/inliers, or a degenerate F.
     """
     alpha = _check_alpha(alpha)
-    w, h = image_size
+    w, h = _check_image_size(image_size)
     out_h, out_w = _output_size(output_size, h, w)
     if (pts1 is None) != (pts2 is None):
         raise StereoInputError("pts1, pts2: give both or neither")

@@ -15,6 +15,7 @@ from kornia.geometry.epipolar import triangulate_points
 
 from stereonet.checks import StereoInputError
 from stereonet.geometry.camera import (
+    _check_rt,
     camera_centre,
     check_intrinsics,
     check_points,
@@ -97,6 +98,9 @@ def triangulate_midpoint(
     check_points(pts2, "pts2", 2)
     check_intrinsics(K1, "K1")
     check_intrinsics(K2, "K2")
+    _check_rt(R, t)
+    if pts1.shape[-2] != pts2.shape[-2]:
+        raise StereoInputError(f"pts2: expected as many points as pts1 ({pts1.shape[-2]}), got {pts2.shape[-2]}")
     return _midpoint(pts1, pts2, K1, K2, R, t)[0]
 
 

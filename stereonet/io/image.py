@@ -122,7 +122,10 @@ def read_array(path: str | os.PathLike) -> np.ndarray:
     if data[:2] == b"\xff\xd8":
         # decoded with the EXIF orientation applied (IMREAD_UNCHANGED would ignore it); JPEG is 8-bit
         flags = cv2.IMREAD_GRAYSCALE if _check_jpeg(data, p) == 1 else cv2.IMREAD_COLOR
-    arr = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    try:
+        arr = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    except cv2.error as e:  # e.g. a header that claims more pixels than OpenCV decodes
+        raise fail(p, f"cannot decode as an image ({str(e).strip().splitlines()[-1]})") from None
     if arr is None:
         raise fail(p, f"cannot decode as an image (starts with {data[:8]!r}; expected PNG, PPM/PGM, JPEG, BMP or TIFF)")
     return arr

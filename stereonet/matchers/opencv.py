@@ -31,11 +31,32 @@ def _num_disparities(max_disp: int) -> int:
     return int(16 * np.ceil((max_disp + 1) / 16))
 
 
+def _int_options(**options) -> None:
+    """OpenCV's integer knobs: whole numbers (a float or a string would fail inside cv2), a one-line error
+    naming the option otherwise."""
+    for name, value in options.items():
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise StereoInputError(f"{name}: expected an integer (OpenCV's), got {value!r}")
+
+
+def _check_block(block_size: int, left: torch.Tensor, lowest: int, name: str) -> None:
+    """An odd ``block_size`` >= ``lowest`` that fits the image (OpenCV asserts otherwise)."""
+    if block_size < lowest or block_size % 2 == 0:
+        raise StereoInputError(f"block_size: expected an odd window >= {lowest} for {name}, got {block_size}")
+    h, w = left.shape[-2:]
+    if block_size > min(h, w):
+        raise StereoInputError(f"left: a {h}x{w} image is smaller than {name}'s {block_size} px window")
+
+
 def _run(left: torch.Tensor, right: torch.Tensor, make, grey: bool) -> StereoOutput:
     outs = []
     for b in range(left.shape[0]):
         l8, r8 = _to_uint8(left[b], grey), _to_uint8(right[b], grey)
-        d = make().compute(l8, r8).astype(np.float32) / 16.0
+        try:
+            d = make().compute(l8, r8).astype(np.float32) / 16.0
+        except cv2.error as e:  # the inputs are checked uint8 images: OpenCV refuses their size for its range
+            raise StereoInputError(f"left: OpenCV cannot match a {l8.shape[1]}x{l8.shape[0]} pair with these settings "
+                                   f"({str(e).strip().splitlines()[-1].strip()})") from None
         outs.append(torch.from_numpy(d))
     disp = torch.stack(outs)[:, None].to(device=left.device, dtype=left.dtype)
     valid = disp >= 0
@@ -48,6 +69,12 @@ def opencv_bm(left: torch.Tensor, right: torch.Tensor, max_disp: int, block_size
               speckle_range: int = 2) -> StereoOutput:
     """OpenCV ``cv2.StereoBM_create``; ``left``/``right`` :math:`(B, C, H, W)`."""
     left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    _int_options(block_size=block_size, uniqueness_ratio=uniqueness_ratio, texture_threshold=texture_threshold,
+                 speckle_window=speckle_window, speckle_range=speckle_range)
+    _check_block(block_size, left, 5, "opencv-bm")
+    if texture_threshold < 0 or uniqueness_ratio < 0:
+        raise StereoInputError(f"texture_threshold/uniqueness_ratio: expected values >= 0, got {texture_threshold}, "
+                               f"{uniqueness_ratio}")
 
     def make():
         m = cv2.StereoBM_create(numDisparities=_num_disparities(max_disp), blockSize=block_size)
@@ -66,6 +93,9 @@ def opencv_sgbm(left: torch.Tensor, right: torch.Tensor, max_disp: int, block_si
                 disp12_max_diff: int = 1, mode: str = "sgbm") -> StereoOutput:
     """OpenCV ``cv2.StereoSGBM_create`` with the P1 = 8·cn·bs², P2 = 32·cn·bs² settings of its samples."""
     left, right, max_disp = check_stereo_inputs(left, right, max_disp)
+    _int_options(block_size=block_size, uniqueness_ratio=uniqueness_ratio, speckle_window=speckle_window,
+                 speckle_range=speckle_range, disp12_max_diff=disp12_max_diff)
+    _check_block(block_size, left, 1, "opencv-sgbm")
     cn = left.shape[1]
     modes = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
              "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY}

@@ -137,3 +137,20 @@ def test_gradcheck_triangulation():
     assert torch.autograd.gradcheck(
         lambda a, b, k: triangulate_midpoint(a, b, k, K2, calib.R, calib.t), (p1, p2, K1), eps=1e-6, atol=1e-6
     )
+
+
+def test_triangulate_midpoint_and_uncalibrated_rectification_check_their_inputs():
+    from stereonet.checks import StereoInputError
+    from stereonet.geometry.rectify import stereo_rectify_uncalibrated
+    from stereonet.geometry.triangulate import triangulate_midpoint
+
+    K = torch.tensor([[50.0, 0, 32], [0, 50, 24], [0, 0, 1]], dtype=torch.float64)
+    p = torch.rand(10, 2, dtype=torch.float64) * 40
+    eye = torch.eye(3, dtype=torch.float64)
+    with pytest.raises(StereoInputError, match="t: expected finite"):  # used to return NaN points
+        triangulate_midpoint(p, p, K, K, eye, torch.full((3,), float("nan"), dtype=torch.float64))
+    with pytest.raises(StereoInputError, match="pts2"):
+        triangulate_midpoint(p, p[:5], K, K, eye, torch.tensor([1.0, 0, 0], dtype=torch.float64))
+    for size in ((0, 0), 64, (64.5, 48)):
+        with pytest.raises(StereoInputError, match="image_size"):
+            stereo_rectify_uncalibrated(p, p, size)

@@ -348,3 +348,19 @@ def test_truncated_jpeg_inside_a_segment(tmp_path):
     (tmp_path / "photo.jpg").write_bytes(data[:30])  # inside the header segments
     with pytest.raises(FileFormatError, match=r"photo\.jpg: truncated"):
         read_image(tmp_path / "photo.jpg")
+
+
+def test_an_image_header_beyond_opencvs_limits_is_a_file_error(tmp_path):
+    """A PNG whose header claims 200000 x 200000 pixels: a one-line file error, not cv2.error."""
+    import struct
+    import zlib
+
+    from stereonet.io import FileFormatError, read_image
+
+    ihdr = struct.pack(">IIBBBBB", 200000, 200000, 8, 0, 0, 0, 0)
+    chunk = lambda kind, data: (struct.pack(">I", len(data)) + kind + data
+                                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    (tmp_path / "huge.png").write_bytes(png)
+    with pytest.raises(FileFormatError, match="huge.png"):
+        read_image(tmp_path / "huge.png")

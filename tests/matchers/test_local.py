@@ -113,3 +113,20 @@ def test_half_precision_images_run_the_torch_reference(method):
         assert out.dtype == dtype
         both = torch.isfinite(out.float()) & torch.isfinite(ref)
         assert float((out.float() - ref)[both].abs().median()) < 0.05
+
+
+@pytest.mark.parametrize("method, options, size, needle", [
+    ("opencv-bm", {"block_size": 4}, (24, 48), "block_size"),
+    ("opencv-bm", {"texture_threshold": -1}, (24, 48), "texture_threshold"),
+    ("opencv-bm", {}, (12, 48), "smaller than opencv-bm's 15 px window"),
+    ("opencv-sgbm", {"block_size": 5.0}, (24, 48), "block_size"),
+    ("opencv-sgbm", {"disp12_max_diff": 1.5}, (24, 48), "disp12_max_diff"),
+    ("opencv-sgbm", {}, (24, 5), "OpenCV cannot match a 5x24 pair"),
+])
+def test_opencv_matchers_name_bad_options_and_sizes(method, options, size, needle):
+    from stereonet.checks import StereoInputError
+    from stereonet.matchers import match
+
+    left = torch.rand(1, 3, *size, generator=torch.Generator().manual_seed(0))
+    with pytest.raises(StereoInputError, match=needle):
+        match(method, left, torch.roll(left, -1, -1), 2, **options)
