@@ -104,10 +104,20 @@ def check_image(x: object, name: str = "image", channels: Sequence[int] = (1, 3)
     return x
 
 
+EIGHT_BIT_GUARD = 2.0
+"""A stereo pair (:func:`check_image_pair`, the matchers' entry) whose maximum exceeds this is taken for unscaled
+8/16-bit values (the matchers' thresholds, census aside, assume [0, 1]); slight overshoots, e.g. after augmentation
+or resampling, pass. Single images inside the pipeline (standardised ones included) are not held to it."""
+
+
 def check_image_pair(left: object, right: object, channels: Sequence[int] = (1, 3)) -> tuple[torch.Tensor, torch.Tensor]:
     """Check a stereo pair: both valid images of the same shape, dtype and device."""
     left = check_image(left, "left", channels)
     right = check_image(right, "right", channels)
+    for name, x in (("left", left), ("right", right)):  # what a user passes in: images in [0, 1]
+        if float(x.detach().amax()) > EIGHT_BIT_GUARD:
+            raise StereoInputError(f"{name}: expected values in [0, 1], got a maximum of {float(x.detach().amax()):g} "
+                                   "(8- or 16-bit values? divide by 255 or 65535)")
     if left.shape != right.shape:
         raise StereoInputError(f"right: expected the same shape as left {_shape(left)}, got {_shape(right)}")
     if left.dtype != right.dtype:

@@ -147,3 +147,15 @@ def test_check_finite_sum_overflow_falls_back_to_the_elementwise_test():
     x[0, 0, 0, 0], x[0, 0, 0, 1] = float("inf"), -float("inf")  # the sum is NaN, not inf
     with pytest.raises(StereoInputError, match="left: expected finite"):
         check_finite(x, "left")
+
+
+def test_a_pair_in_eight_bit_units_is_a_one_line_error():
+    """float images of 0-255 values ran silently (opencv-sgbm clamped them, changing its answer)."""
+    from stereonet.checks import StereoInputError
+    from stereonet.matchers import match
+
+    left = torch.rand(1, 3, 24, 48, generator=torch.Generator().manual_seed(0))
+    for method in ("sgm", "opencv-sgbm", "bm-sad"):
+        with pytest.raises(StereoInputError, match=r"left: expected values in \[0, 1\].*divide by 255"):
+            match(method, left * 255, torch.roll(left, -2, -1) * 255, 8)
+    match("sgm", left * 1.5, torch.roll(left, -2, -1) * 1.5, 8)  # an overshoot (augmentation, resampling) passes
