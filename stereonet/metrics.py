@@ -40,7 +40,13 @@ def _as_b1hw(x, name: str, dtype: torch.dtype | None = torch.float64) -> torch.T
     """(H, W), (B, H, W) or (B, 1, H, W), torch or numpy -> (B, 1, H, W) on CPU."""
     if x is None:
         raise TypeError(f"{name}: expected a tensor or array, got None")
-    t = torch.from_numpy(np.asarray(x)) if not isinstance(x, torch.Tensor) else x.detach()
+    if not isinstance(x, torch.Tensor):
+        a = np.asarray(x)
+        if a.dtype.kind not in "biuf":
+            raise StereoInputError(f"{name}: expected a numeric array, got dtype {a.dtype}")
+        t = torch.from_numpy(np.ascontiguousarray(a))  # a reversed or strided view is fine
+    else:
+        t = x.detach()
     if t.dim() == 2:
         t = t[None, None]
     elif t.dim() == 3:

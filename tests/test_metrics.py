@@ -168,3 +168,17 @@ def test_see_in_evaluate_and_against_numpy_reference():
     ref = float(np.mean(errs))
     assert soft_edge_error(pred, gt) == pytest.approx(ref)
     assert evaluate(pred, gt)["see"] == pytest.approx(ref)
+
+
+def test_numpy_views_and_non_numeric_arrays():
+    """A reversed numpy view is a valid input (torch.from_numpy refused negative strides); strings are named."""
+    import numpy as np
+
+    from stereonet import metrics
+    from stereonet.checks import StereoInputError
+
+    g = (np.random.default_rng(0).random((16, 24)) * 8).astype(np.float32)
+    res = metrics.evaluate(g[:, ::-1] + 1.0, g[:, ::-1])
+    assert res["epe"] == pytest.approx(1.0, abs=1e-5)
+    with pytest.raises(StereoInputError, match="numeric"):
+        metrics.evaluate(np.full((16, 24), "a"), g)
