@@ -110,7 +110,10 @@ class Calibration:
                                        f"got {self.ndisp}")
             self.ndisp = int(self.ndisp) or None
         if self.image_size is not None:
-            w, h = (int(x) for x in self.image_size)
+            try:
+                w, h = (int(x) for x in self.image_size)
+            except (TypeError, ValueError):
+                raise StereoInputError(f"image_size: expected (width, height), got {self.image_size!r}") from None
             if w <= 0 or h <= 0:
                 raise StereoInputError(f"image_size: expected positive (width, height), got {self.image_size}")
             self.image_size = (w, h)

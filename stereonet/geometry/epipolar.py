@@ -374,6 +374,8 @@ def fundamental_robust(
         raise StereoInputError(f"on_planar: expected 'flag', 'raise' or 'ignore', got {on_planar!r}")
     if not threshold > 0:
         raise StereoInputError(f"threshold: expected a positive number of pixels, got {threshold!r}")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise StereoInputError(f"batch_size: expected a positive integer, got {batch_size!r}")
     p1, p2 = pts1.detach().double(), pts2.detach().double()
     n = p1.shape[0]
     gen = torch.Generator().manual_seed(seed)

@@ -51,8 +51,12 @@ def read_disparity(path: str | os.PathLike, scale: float | None = None) -> tuple
                              f"Tsukuba 16, Venus 8; Middlebury 2003 quarter size: 4)")
     else:
         raise fail(p, f"expected an 8- or 16-bit disparity image, got {raw.dtype}")
-    if not scale > 0:
-        raise StereoInputError(f"scale: expected a positive number, got {scale}")
+    try:
+        ok = not isinstance(scale, bool | str) and 0 < float(scale) < float("inf")
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise StereoInputError(f"scale: expected a positive number, got {scale!r}")
     valid = raw > 0
     return (raw.astype(np.float32) / np.float32(scale)), valid
 

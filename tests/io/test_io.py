@@ -364,3 +364,16 @@ def test_an_image_header_beyond_opencvs_limits_is_a_file_error(tmp_path):
     (tmp_path / "huge.png").write_bytes(png)
     with pytest.raises(FileFormatError, match="huge.png"):
         read_image(tmp_path / "huge.png")
+
+
+def test_read_disparity_scale_and_calibration_size_are_checked(tmp_path):
+    from stereonet.io import read_disparity
+    from stereonet.types import Calibration
+
+    cv2.imwrite(str(tmp_path / "d.png"), np.full((4, 6), 40, np.uint8))
+    assert read_disparity(tmp_path / "d.png", scale=np.float32(4))[0][0, 0] == 10.0  # numpy scalars are numbers
+    for scale in ("16", float("nan"), 0):
+        with pytest.raises(StereoInputError, match="scale"):
+            read_disparity(tmp_path / "d.png", scale=scale)
+    with pytest.raises(StereoInputError, match="image_size"):
+        Calibration(torch.eye(3), torch.eye(3), torch.eye(3), torch.tensor([1.0, 0, 0]), image_size=(64,))
