@@ -245,6 +245,11 @@ def run_evaluation(methods: Sequence[str], specs: Sequence[str], max_disp: int |
                     raise
                 name = str(item.get("name", idx))
                 md = int(max_disp if max_disp is not None else item["max_disp"])
+                if max_disp is not None and md >= item["left"].shape[-1]:  # the caller's range, not a method's fault
+                    bar.leave = False
+                    bar.close()
+                    raise StereoInputError(f"--max-disp: expected less than the width of {label}/{name} "
+                                           f"({item['left'].shape[-1]} px), got {md}")
                 left, right = _batch(item["left"]).float(), _batch(item["right"]).float()
                 if align:
                     from stereonet.geometry.align import auto_align

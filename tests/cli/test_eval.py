@@ -320,3 +320,9 @@ def test_a_folder_without_ground_truth_is_noted(tmp_path, capsys):
     assert ev.main(["--methods", "opencv-bm", "--data", f"folder:{tmp_path}", "--no-progress"]) == 0
     err = capsys.readouterr().err
     assert "has no ground truth; only times and memory are reported" in err
+
+
+def test_a_max_disp_wider_than_a_pair_is_bad_input(capsys):
+    code = ev.main(["--methods", "opencv-bm", "--data", "synthetic:1", "--max-disp", "5000", "--no-progress"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("eval.py: error: --max-disp: expected less"), lines
