@@ -173,7 +173,11 @@ def candidate_labels(volume: torch.Tensor, k: int, smoothness: float, truncation
 
     mean_weight = 1.0
     if weights_right is not None:
-        mean_weight = 0.5 * float(weights_right[..., :, :-1].mean() + weights_down[..., :-1, :].mean())
+        across, down = weights_right[..., :, :-1], weights_down[..., :-1, :]
+        if across.numel() and down.numel():
+            mean_weight = 0.5 * float(across.mean() + down.mean())
+        elif across.numel() or down.numel():  # a one-pixel-tall (or -wide) image has edges one way only
+            mean_weight = float((across if across.numel() else down).mean())
     P1 = smoothness * mean_weight
     n = volume.shape[1]
     aggregated = sgm_aggregate(volume, P1, P1 * min(truncation, float(n)), paths=8)
@@ -212,6 +216,9 @@ def graphcut_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, cos
     volume, wr, wd = _mrf_problem(left, right, max_disp, cost, window, cost_options, contrast_threshold,
                                   contrast_factor)
     labels = None
+    from stereonet.aggregate.mrf import check_smoothness
+
+    smoothness, truncation = check_smoothness(smoothness, truncation)  # before the candidates use them
     if candidates is not None:
         if isinstance(candidates, bool) or not isinstance(candidates, int) or candidates < 1:
             raise StereoInputError(f"candidates: expected an integer >= 1 or None, got {candidates!r}")

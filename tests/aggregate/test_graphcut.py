@@ -229,3 +229,18 @@ def test_pruned_matcher_and_bad_candidates(textured_pair):
         alpha_expansion(cost, 1.0, candidates=torch.zeros(1, 2, 5, 6))
     with pytest.raises(StereoInputError, match="candidate_radius"):
         alpha_expansion(cost, 1.0, candidates=torch.zeros(1, 2, 5, 6, dtype=torch.long), candidate_radius=-1)
+
+
+def test_graphcut_matcher_on_a_one_pixel_tall_pair_and_a_nan_smoothness():
+    """A one-row pair has no vertical edges (their mean contrast weight was NaN and surfaced as a 'P1/P2' error
+    the matcher has no option for); a NaN smoothness is named as such."""
+    from stereonet.checks import StereoInputError
+    from stereonet.matchers import match
+
+    g = torch.Generator().manual_seed(0)
+    left = torch.rand(1, 3, 1, 48, generator=g)
+    out = match("graphcut", left, torch.roll(left, -2, -1), 8)
+    assert out.disparity.shape == (1, 1, 1, 48) and bool(torch.isfinite(out.disparity).all())
+    with pytest.raises(StereoInputError, match="smoothness"):
+        match("graphcut", torch.rand(1, 3, 24, 48, generator=g), torch.rand(1, 3, 24, 48, generator=g), 8,
+              smoothness=float("nan"))
