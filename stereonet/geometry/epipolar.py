@@ -162,7 +162,20 @@ def sampson_distance(
         ``(H, 3, 3)`` models gives :math:`(H, N)`). A correspondence whose two epipolar lines are both
         degenerate (zero denominator, e.g. at both epipoles) is at distance ``inf``, never NaN.
     """
+    check_points(pts1, "pts1", 2)
+    check_points(pts2, "pts2", 2)
+    if pts1.shape[-2] != pts2.shape[-2]:
+        raise StereoInputError(f"pts2: expected as many points as pts1 ({pts1.shape[-2]}), got {pts2.shape[-2]}")
+    _check_fundamental(F)
     return kge.sampson_epipolar_distance(pts1, pts2, F, squared=squared)
+
+
+def _check_fundamental(F: object, name: str = "F") -> None:
+    """A tensor :math:`(*, 3, 3)` of finite values; a one-line error naming ``name`` otherwise."""
+    from stereonet.checks import check_finite, check_shape, check_tensor
+
+    check_shape(check_tensor(F, name), ["*", "3", "3"], name)
+    check_finite(F, name)
 
 
 def epipolar_lines(points: torch.Tensor, F: torch.Tensor, in_image: int = 2) -> torch.Tensor:
@@ -190,6 +203,7 @@ def epipoles(F: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         (e1, e2) each :math:`(*, 3)`, sign chosen so that the last coordinate is >= 0. Divide by the last
         coordinate for pixels; a last coordinate ~0 means the epipole is at infinity (e.g. a rectified pair).
     """
+    _check_fundamental(F)
     U, _, Vh = torch.linalg.svd(F)
     e1, e2 = Vh[..., 2, :], U[..., :, 2]
     e1 = e1 * torch.where(e1[..., 2:] < 0, -1.0, 1.0)
@@ -200,6 +214,7 @@ def epipoles(F: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 def essential_from_fundamental(F: torch.Tensor, K1: torch.Tensor, K2: torch.Tensor) -> torch.Tensor:
     """``E = K2^T F K1`` projected to the essential manifold (equal singular values, see
     :func:`project_to_essential`). F :math:`(*, 3, 3)`, K1, K2 :math:`(*, 3, 3)`; the product is kornia's."""
+    _check_fundamental(F)
     check_intrinsics(K1, "K1")
     check_intrinsics(K2, "K2")
     return project_to_essential(kge.essential_from_fundamental(F, K1, K2))
@@ -390,7 +405,7 @@ def fundamental_robust(
             done += count
             continue
         ok = (margin > 1e-12) & torch.isfinite(F_h).all(-1).all(-1)  # H, determined samples
-        d2 = sampson_distance(p1, p2, F_h)  # HxN
+        d2 = kge.sampson_epipolar_distance(p1, p2, F_h, squared=True)  # HxN (hypotheses may be degenerate: unchecked)
         if method == "ransac":
             score = -((d2 < threshold**2) & ok[:, None]).sum(-1).double()
         else:
@@ -409,12 +424,12 @@ def fundamental_robust(
     if method == "lmeds":
         sigma = 1.4826 * (1 + 5 / max(n - 8, 1)) * math.sqrt(max(best_score, 0.0))
         threshold = max(2.5 * sigma, 1e-6)
-    inliers = sampson_distance(p1, p2, best_F) < threshold**2
+    inliers = kge.sampson_epipolar_distance(p1, p2, best_F, squared=True) < threshold**2
     for _ in range(5):
         if int(inliers.sum()) < 8:
             break
         F_ref, _ = _eight_point_core(p1[inliers], p2[inliers])
-        new_inliers = sampson_distance(p1, p2, F_ref) < threshold**2
+        new_inliers = kge.sampson_epipolar_distance(p1, p2, F_ref, squared=True) < threshold**2
         if int(new_inliers.sum()) < int(inliers.sum()):
             break
         best_F, changed, inliers = F_ref, bool((new_inliers != inliers).any()), new_inliers

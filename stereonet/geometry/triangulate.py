@@ -13,7 +13,7 @@ from typing import NamedTuple
 import torch
 from kornia.geometry.epipolar import triangulate_points
 
-from stereonet.checks import StereoInputError
+from stereonet.checks import StereoInputError, check_finite, check_shape, check_tensor
 from stereonet.geometry.camera import (
     _check_rt,
     camera_centre,
@@ -58,6 +58,11 @@ def triangulate_dlt(
     """
     check_points(pts1, "pts1", 2)
     check_points(pts2, "pts2", 2)
+    if pts1.shape[-2] != pts2.shape[-2]:
+        raise StereoInputError(f"pts2: expected as many points as pts1 ({pts1.shape[-2]}), got {pts2.shape[-2]}")
+    for name, P in (("P1", P1), ("P2", P2)):
+        check_shape(check_tensor(P, name), ["*", "3", "4"], name)
+        check_finite(P, name)
     return _dlt(P1, P2, pts1, pts2)[0]
 
 

@@ -154,3 +154,27 @@ def test_triangulate_midpoint_and_uncalibrated_rectification_check_their_inputs(
     for size in ((0, 0), 64, (64.5, 48)):
         with pytest.raises(StereoInputError, match="image_size"):
             stereo_rectify_uncalibrated(p, p, size)
+
+
+def test_epipolar_helpers_and_dlt_check_their_inputs():
+    from stereonet.checks import StereoInputError
+    from stereonet.geometry.epipolar import epipoles, essential_from_fundamental, sampson_distance
+    from stereonet.geometry.triangulate import triangulate_dlt
+
+    p = torch.rand(10, 2, dtype=torch.float64) * 40
+    F = torch.tensor([[0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], dtype=torch.float64)
+    assert sampson_distance(p, p, F).shape == (10,)
+    with pytest.raises(StereoInputError, match="pts2"):
+        sampson_distance(p, p[:4], F)
+    with pytest.raises(StereoInputError, match="F"):
+        sampson_distance(p, p, F[:2])
+    nan_F = torch.full((3, 3), float("nan"), dtype=torch.float64)
+    for call in (lambda: epipoles(nan_F), lambda: essential_from_fundamental(nan_F, torch.eye(3, dtype=torch.float64),
+                                                                             torch.eye(3, dtype=torch.float64))):
+        with pytest.raises(StereoInputError, match="F: expected finite"):
+            call()
+    P = torch.cat([torch.eye(3), torch.zeros(3, 1)], 1).double()
+    with pytest.raises(StereoInputError, match="P1"):
+        triangulate_dlt(P[:, :3], P, p, p)
+    with pytest.raises(StereoInputError, match="pts2"):
+        triangulate_dlt(P, P, p, p[:3])
