@@ -209,6 +209,22 @@ def read_pair(pair: Pair, device: torch.device) -> tuple[torch.Tensor, torch.Ten
     return left.contiguous().to(device), right.contiguous().to(device)
 
 
+def read_alpha(path: Path) -> torch.Tensor | None:
+    """The alpha channel of a PNG with one (colour or grey + alpha; the header says so without decoding) as a
+    (H, W) bool mask, True = opaque (alpha > 0); None for every other file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+    except OSError:
+        return None
+    if len(head) < 26 or not head.startswith(b"\x89PNG\r\n\x1a\n") or head[25] not in (4, 6):
+        return None
+    from stereonet.io import read_array
+
+    arr = read_array(path)
+    return torch.from_numpy(np.ascontiguousarray(arr[..., -1] > 0)) if arr.ndim == 3 and arr.shape[2] in (2, 4) else None
+
+
 def sift_matches(left: torch.Tensor, right: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
     """SIFT matches (:func:`stereonet.features.match_sift`, ratio test, mutual): (N, 2) pixel coordinates each."""
     from stereonet.features import match_sift
@@ -439,6 +455,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
 
     st = settings or Settings(fill=fill)
     left, right = read_pair(pair, device)
+    alphas = [None, None] if pair.frame is not None else [read_alpha(pair.left), read_alpha(pair.right)]
     info: dict = {"left": str(pair.left), "right": str(pair.right), "method": method,
                   "backend": options.get("backend", "torch"), "frame": pair.frame, "rectified": None,
                   "units": {"disparity": "px of the images processed (after --scale)", "confidence": "1 (0..1)"},
@@ -450,6 +467,12 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         left, right, calib = scale_pair(left, right, calib, st.scale)
         info["scale"] = {"factor": st.scale, "input_size": [int(w0), int(h0)],
                          "processed_size": [int(left.shape[-1]), int(left.shape[-2])]}
+    if any(a is not None for a in alphas):  # transparent pixels (alpha 0) are no content, as padding is not
+        import torch.nn.functional as F
+
+        alphas = [torch.ones(left.shape[-2:]) if a is None else
+                  F.interpolate(a[None, None].float(), size=tuple(left.shape[-2:]), mode="area")[0, 0] for a in alphas]
+        info["warnings"].append("transparent pixels (alpha 0) are treated as no content: never an answer")
     depth_calib, rect = calib, None
     h, w = left.shape[-2:]
     left_content = torch.ones(h, w, dtype=torch.bool, device=device)
@@ -481,6 +504,11 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
                 from dataclasses import replace as _replace
 
                 st.rig_cache[key] = (_replace(rect, left=None, right=None), left_content, right_content)
+        if alphas[0] is not None:  # the transparent pixels, carried through the rectification
+            left_content = left_content & (geometry.warp_image(alphas[0][None, None], source_map=rect.maps[0])[0, 0]
+                                           > 0.5).to(device)
+            right_content = right_content & (geometry.warp_image(alphas[1][None, None], source_map=rect.maps[1])[0, 0]
+                                             > 0.5).to(device)
         left, right = rect.left.to(device), rect.right.to(device)
         info["alpha"] = st.alpha
         info["padding_percent"] = 100.0 * (1.0 - float(left_content.float().mean()))
@@ -494,6 +522,8 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     else:  # given as rectified: checked against its SIFT matches below
         pl, pr = sift_matches(left, right)
         given_rectified = True
+        if alphas[0] is not None:
+            left_content, right_content = (alphas[0] > 0.5).to(device), (alphas[1] > 0.5).to(device)
     if st.align:
         right, right_content, pr = align_vertically(left, right, right_content, pl, pr, max_disp, info, pair)
     if given_rectified:

@@ -789,3 +789,19 @@ def test_depth_beyond_the_uint16_range_is_no_depth(tmp_path, capsys):
     assert code == 0 and "beyond 65.535 m" in err
     assert (read_array(tmp_path / "out" / "depth_mm.png") == 0).all()
 
+
+
+def test_transparent_pixels_are_never_an_answer(tmp_path, capsys):
+    """An RGBA pair whose first 20 columns are transparent (black, alpha 0): no answer there, even with --fill."""
+    from stereonet.io import read_disparity
+
+    left, right = textured_pair()
+    alpha = np.full(left.shape[:2], 255, np.uint8)
+    alpha[:, :20] = 0
+    lp, rp = tmp_path / "l.png", tmp_path / "r.png"
+    cv2.imwrite(str(lp), np.dstack([left * (alpha[..., None] > 0), alpha]))
+    cv2.imwrite(str(rp), np.dstack([right, np.full_like(alpha, 255)]))
+    code, err = run_main(capsys, lp, rp, "-o", tmp_path / "out", "--method", "sgm", "--max-disp", "16", "--fill")
+    assert code == 0 and "transparent pixels" in err
+    disp, valid = read_disparity(tmp_path / "out" / "disparity.pfm")
+    assert not valid[:, :20].any() and valid[:, 40:].mean() > 0.9
