@@ -484,7 +484,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
         if uncalibrated:
             rect = geometry.rectify_uncalibrated(left, right, alpha=st.alpha)
             info["rectified"] = "uncalibrated (SIFT + robust F)"
-            info["warnings"].extend(getattr(rect, "notes", None) or [])
+            info["rectification_notes"] = list(rect.notes)  # already on stderr (the geometry's logger)
             depth_calib = None
         else:
             key = ("calibrated", h, w, st.alpha)  # one --calib for the whole batch: a fixed rig
