@@ -79,6 +79,22 @@ def inputs_checked(*tensors: torch.Tensor) -> Iterator[None]:
         _CHECKED.reset(token)
 
 
+def check_number(value: object, name: str, minimum: float | None = 0.0, strict: bool = False,
+                 allow_inf: bool = False) -> float:
+    """A real number option (numpy scalars included; not a bool or a string), finite unless ``allow_inf``, and
+    ``>= minimum`` (``> minimum`` with ``strict``; None = no bound), as float. NaN fails: it would silently switch
+    a comparison-based check off or make it reject everything."""
+    try:
+        number = math.nan if isinstance(value, bool | str) else float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    low = minimum is not None and (number <= minimum if strict else number < minimum)
+    if math.isnan(number) or (math.isinf(number) and not allow_inf) or low:
+        bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum:g}"
+        raise StereoInputError(f"{name}: expected a {'' if allow_inf else 'finite '}number{bound}, got {value!r}")
+    return number
+
+
 def check_finite(x: torch.Tensor, name: str) -> None:
     if any(x is t for t in _CHECKED.get()):
         return
@@ -115,8 +131,11 @@ def check_image_pair(left: object, right: object, channels: Sequence[int] = (1, 
     left = check_image(left, "left", channels)
     right = check_image(right, "right", channels)
     for name, x in (("left", left), ("right", right)):  # what a user passes in: images in [0, 1]
-        if float(x.detach().amax()) > EIGHT_BIT_GUARD:
-            raise StereoInputError(f"{name}: expected values in [0, 1], got a maximum of {float(x.detach().amax()):g} "
+        if any(x is t for t in _CHECKED.get()):  # a matcher inside a matcher: checked once, at the entry
+            continue
+        top = float(x.detach().amax())
+        if top > EIGHT_BIT_GUARD:
+            raise StereoInputError(f"{name}: expected values in [0, 1], got a maximum of {top:g} "
                                    "(8- or 16-bit values? divide by 255 or 65535)")
     if left.shape != right.shape:
         raise StereoInputError(f"right: expected the same shape as left {_shape(left)}, got {_shape(right)}")

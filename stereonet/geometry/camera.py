@@ -56,6 +56,14 @@ def check_points(points: object, name: str, dim: int, min_count: int = 1) -> tor
     return points
 
 
+def check_point_pairs(pts1: object, pts2: object, dim: int = 2) -> None:
+    """Two point sets :math:`(*, N, dim)` (:func:`check_points`) of corresponding points: the same N."""
+    check_points(pts1, "pts1", dim)
+    check_points(pts2, "pts2", dim)
+    if pts1.shape[-2] != pts2.shape[-2]:
+        raise StereoInputError(f"pts2: expected as many points as pts1 ({pts1.shape[-2]}), got {pts2.shape[-2]}")
+
+
 def check_intrinsics(K: object, name: str = "K") -> torch.Tensor:
     """Check an intrinsic matrix :math:`(*, 3, 3)`: finite, last row ``(0, 0, 1)``-like, invertible."""
     check_shape(K, ["*", "3", "3"], name)

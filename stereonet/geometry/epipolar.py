@@ -18,8 +18,13 @@ from typing import NamedTuple
 import torch
 from kornia.geometry import epipolar as kge
 
-from stereonet.checks import StereoInputError
-from stereonet.geometry.camera import DegenerateGeometryError, check_intrinsics, check_points
+from stereonet.checks import StereoInputError, check_finite, check_shape, check_tensor
+from stereonet.geometry.camera import (
+    DegenerateGeometryError,
+    check_intrinsics,
+    check_point_pairs,
+    check_points,
+)
 
 __all__ = [
     "FundamentalEstimate",
@@ -162,18 +167,13 @@ def sampson_distance(
         ``(H, 3, 3)`` models gives :math:`(H, N)`). A correspondence whose two epipolar lines are both
         degenerate (zero denominator, e.g. at both epipoles) is at distance ``inf``, never NaN.
     """
-    check_points(pts1, "pts1", 2)
-    check_points(pts2, "pts2", 2)
-    if pts1.shape[-2] != pts2.shape[-2]:
-        raise StereoInputError(f"pts2: expected as many points as pts1 ({pts1.shape[-2]}), got {pts2.shape[-2]}")
+    check_point_pairs(pts1, pts2)
     _check_fundamental(F)
     return kge.sampson_epipolar_distance(pts1, pts2, F, squared=squared)
 
 
 def _check_fundamental(F: object, name: str = "F") -> None:
     """A tensor :math:`(*, 3, 3)` of finite values; a one-line error naming ``name`` otherwise."""
-    from stereonet.checks import check_finite, check_shape, check_tensor
-
     check_shape(check_tensor(F, name), ["*", "3", "3"], name)
     check_finite(F, name)
 

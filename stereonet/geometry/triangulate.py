@@ -18,6 +18,7 @@ from stereonet.geometry.camera import (
     _check_rt,
     camera_centre,
     check_intrinsics,
+    check_point_pairs,
     check_points,
     projection_matrix,
     undistort_pixels,
@@ -56,10 +57,7 @@ def triangulate_dlt(
         points :math:`(*, N, 3)` in the frame the projection matrices act on. Points at infinity are returned
         as their direction (finite, the unit ray of ``pts1``); use :func:`triangulate` to get the ``valid`` flag.
     """
-    check_points(pts1, "pts1", 2)
-    check_points(pts2, "pts2", 2)
-    if pts1.shape[-2] != pts2.shape[-2]:
-        raise StereoInputError(f"pts2: expected as many points as pts1 ({pts1.shape[-2]}), got {pts2.shape[-2]}")
+    check_point_pairs(pts1, pts2)
     for name, P in (("P1", P1), ("P2", P2)):
         check_shape(check_tensor(P, name), ["*", "3", "4"], name)
         check_finite(P, name)
@@ -99,13 +97,10 @@ def triangulate_midpoint(
     Returns:
         points :math:`(*, N, 3)`; parallel rays give a finite placeholder (see :func:`triangulate`).
     """
-    check_points(pts1, "pts1", 2)
-    check_points(pts2, "pts2", 2)
+    check_point_pairs(pts1, pts2)
     check_intrinsics(K1, "K1")
     check_intrinsics(K2, "K2")
     _check_rt(R, t)
-    if pts1.shape[-2] != pts2.shape[-2]:
-        raise StereoInputError(f"pts2: expected as many points as pts1 ({pts1.shape[-2]}), got {pts2.shape[-2]}")
     return _midpoint(pts1, pts2, K1, K2, R, t)[0]
 
 

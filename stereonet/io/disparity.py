@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereonet.checks import StereoInputError
+from stereonet.checks import StereoInputError, check_number
 from stereonet.io.atomic import atomic_write_bytes
 from stereonet.io.errors import existing_file, fail
 from stereonet.io.image import encode_image, read_array
@@ -51,12 +51,7 @@ def read_disparity(path: str | os.PathLike, scale: float | None = None) -> tuple
                              f"Tsukuba 16, Venus 8; Middlebury 2003 quarter size: 4)")
     else:
         raise fail(p, f"expected an 8- or 16-bit disparity image, got {raw.dtype}")
-    try:
-        ok = not isinstance(scale, bool | str) and 0 < float(scale) < float("inf")
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise StereoInputError(f"scale: expected a positive number, got {scale!r}")
+    check_number(scale, "scale", strict=True)
     valid = raw > 0
     return (raw.astype(np.float32) / np.float32(scale)), valid
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from stereonet.checks import StereoInputError
+from stereonet.checks import StereoInputError, check_number
 from stereonet.matchers import register
 from stereonet.models.dispnet import run_padded
 from stereonet.models.graphs import NetworkGraph, OnnxGraph
@@ -277,8 +277,7 @@ def smd_matcher(left: torch.Tensor, right: torch.Tensor, max_disp: int, checkpoi
         raise StereoInputError(f"lr_check: expected True or False, got {lr_check!r}")
     if lr_uncertainty not in ("fill", "one"):
         raise StereoInputError(f"lr_uncertainty: expected 'fill' or 'one', got {lr_uncertainty!r}")
-    if isinstance(upsample, bool) or not isinstance(upsample, int | float) or not 0 < upsample < float("inf"):
-        raise StereoInputError(f"upsample: expected a finite output scale > 0 (1 = the input grid), got {upsample!r}")
+    check_number(upsample, "upsample", strict=True)  # the output grid's scale (1 = the input grid)
     check_wmf_options(wmf_radius, wmf_sigma_color, wmf_stride)
     graph = network_graph("smd", checkpoint, backend, onnx_model)
     h, w = left.shape[-2:]

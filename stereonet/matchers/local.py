@@ -28,8 +28,6 @@ instead of 83 % on Cones), both below SGBM (4.76 / 2.20 / 11.91 / 18.92 / 8.04 /
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 
@@ -44,7 +42,7 @@ from stereonet.aggregate.sgm import (
     sgm_aggregate_hwd,
     sgm_directions,
 )
-from stereonet.checks import StereoInputError, check_window
+from stereonet.checks import StereoInputError, check_number, check_window
 from stereonet.cost import build_cost_volume
 from stereonet.cost.prefilter import prefilter_image
 from stereonet.cost.volume import (
@@ -75,24 +73,12 @@ from stereonet.types import StereoOutput
 OPENCV_OPTIONS = {
     "block_size": ("window", lambda v: check_window(v, "block_size")),  # bm-*: the matching window; sgm: the
     # cost's box window before the aggregation
-    "uniqueness_ratio": ("uniqueness", lambda v: _number(v, "uniqueness_ratio") / 100.0),  # percent margin
-    "disp12_max_diff": ("lr_tol", lambda v: None if v is None or _number(v, "disp12_max_diff", negative=True) < 0
+    "uniqueness_ratio": ("uniqueness", lambda v: check_number(v, "uniqueness_ratio") / 100.0),  # percent margin
+    "disp12_max_diff": ("lr_tol", lambda v: None if v is None or check_number(v, "disp12_max_diff", None) < 0
                         else float(v)),  # px; < 0 / None: off
-    "speckle_window": ("speckle_size", lambda v: int(_number(v, "speckle_window"))),  # largest speckle removed, px
-    "speckle_range": ("speckle_diff", lambda v: _number(v, "speckle_range")),  # largest step inside one region, px
+    "speckle_window": ("speckle_size", lambda v: int(check_number(v, "speckle_window"))),  # largest removed, px
+    "speckle_range": ("speckle_diff", lambda v: check_number(v, "speckle_range")),  # largest step in one region, px
 }
-
-
-def _number(value, name: str, negative: bool = False) -> float:
-    """A finite real option value (>= 0 unless ``negative``) as float; a one-line error naming ``name`` otherwise
-    (NaN would silently switch a check off or reject every pixel)."""
-    try:
-        number = float(value) if not isinstance(value, bool | str) else math.nan
-    except (TypeError, ValueError):
-        number = math.nan
-    if not math.isfinite(number) or (not negative and number < 0):
-        raise StereoInputError(f"{name}: expected a finite {'' if negative else 'non-negative '}number, got {value!r}")
-    return number
 _OPENCV_NAME = {inner: outer for outer, (inner, _) in OPENCV_OPTIONS.items()}
 
 

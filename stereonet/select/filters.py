@@ -7,7 +7,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from stereonet.checks import StereoInputError, check_shape, check_window
+from stereonet.checks import StereoInputError, check_finite, check_shape, check_window
 from stereonet.kernels import use_numba
 from stereonet.kernels.filters import (
     WMF_MIN_LOG_WEIGHT,
@@ -171,8 +171,7 @@ def weighted_median_filter(disp: torch.Tensor, guide: torch.Tensor, radius: int 
         raise StereoInputError(f"band: expected an integer >= 0 pixels (or None = radius), got {band!r}")
     if backend not in ("auto", "torch", "numba"):
         raise StereoInputError(f"backend: expected 'auto', 'torch' or 'numba', got {backend!r}")
-    if not bool(torch.isfinite(guide).all()):  # the kernel's colour weights assume finite guide values
-        raise StereoInputError("guide: expected finite values, got NaN or inf")
+    check_finite(guide, "guide")  # the kernel's colour weights assume finite guide values
     valid = torch.isfinite(disp) if valid is None else valid & torch.isfinite(disp)  # NaN and inf never vote
     votes = disp[valid]
     span = float(votes.max() - votes.min()) if votes.numel() else 0.0

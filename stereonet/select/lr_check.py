@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from stereonet.checks import StereoInputError, check_cost_volume, check_shape
+from stereonet.checks import check_cost_volume, check_number, check_shape
 from stereonet.kernels import use_numba
 
 LR_TOL = 1.0
@@ -111,12 +111,7 @@ def left_right_check(disp_left: torch.Tensor, disp_right: torch.Tensor, tol: flo
     """
     dims = check_shape(disp_left, ["B", "1", "H", "W"], "disp_left")
     check_shape(disp_right, [str(dims["B"]), "1", str(dims["H"]), str(dims["W"])], "disp_right")
-    try:
-        ok = not isinstance(tol, bool | str) and float(tol) >= 0  # NaN fails too
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise StereoInputError(f"tol: expected a non-negative tolerance in pixels, got {tol!r}")
+    check_number(tol, "tol", allow_inf=True)  # px; NaN fails
     diff, inside, idx = _difference(disp_left, disp_right)
     consistent = inside & (diff <= tol)
     if valid_right is not None:
