@@ -106,7 +106,8 @@ def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int 
         raise ValueError(f"count: expected an integer >= 1, got {count!r}")
     check_render_args(seed, 0, difficulty, height, width, supersample, render_options.get("max_disp"),
                       render_options.get("baseline"), render_options.get("num_objects"))
-    check_probability(render_options.get("shared_material", 0.0), "shared_material")
+    for option in ("shared_material", "weak_background", "thin_structures"):
+        check_probability(render_options.get(option, 0.0), option)
     textures = check_textures(render_options.get("textures"))
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -118,7 +119,8 @@ def generate(out: str | os.PathLike, count: int, seed: int = 0, difficulty: int 
     folders = []
     for index in tqdm(range(count), desc="data_gen", unit="pair", disable=not progress):
         name = pair_name(seed, index, difficulty, rectified, render_options.get("shared_material", 0.0),
-                         textures)
+                         textures, render_options.get("weak_background", 0.0),
+                         render_options.get("thin_structures", 0.0))
         final = out / name
         folders.append(final)
         if final.is_dir():
@@ -223,6 +225,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shared-material", type=float, default=0.0,
                    help="probability that an object takes the look of the surface behind it (depth edges without "
                         "a colour edge; default 0)")
+    p.add_argument("--weak-background", type=float, default=0.0,
+                   help="probability that the background walls get a weaker texture (default 0)")
+    p.add_argument("--thin-structures", type=float, default=0.0,
+                   help="probability that a scene gets a few thin rods: poles, branches, cables (default 0)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument("--bench", action="store_true", help="measure pairs per second on one core and exit")
     p.add_argument("--bench-count", type=int, default=10, help="pairs rendered by --bench")
@@ -252,7 +258,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         folders = generate(args.out, args.count, args.seed, args.difficulty, not args.unrectified, args.height,
                            args.width, args.supersample, progress=not args.no_progress, max_disp=args.max_disp,
-                           shared_material=args.shared_material)
+                           shared_material=args.shared_material, weak_background=args.weak_background,
+                           thin_structures=args.thin_structures)
     except (ValueError, TypeError) as e:
         parser.error(str(e))
     sys.stdout.write(f"{len(folders)} pairs in {args.out}\n")

@@ -27,7 +27,7 @@ class SyntheticStereo(Dataset):
         count: number of pairs (>= 1); seed: dataset seed; difficulty, height, width, rectified, supersample:
             as :func:`data_gen.render_pair`; ``**render_options``: its keyword-only options (num_objects,
             max_disp, baseline, distortion, noise, photometric, blur, specular, occlusion_right,
-            shared_material, textures, weak_background).
+            shared_material, textures, weak_background, thin_structures).
     """
 
     def __init__(self, count: int, seed: int = 0, difficulty: int = 2, height: int = 256, width: int = 512,
@@ -36,10 +36,10 @@ class SyntheticStereo(Dataset):
             raise ValueError(f"count: expected an integer >= 1, got {count!r}")
         unknown = set(render_options) - {"num_objects", "max_disp", "baseline", "distortion", "noise",
                                          "photometric", "blur", "specular", "occlusion_right", "shared_material",
-                                         "textures", "weak_background"}
+                                         "textures", "weak_background", "thin_structures"}
         if unknown:
             raise TypeError(f"render_options: unknown option(s) {sorted(unknown)}")
-        for name in ("shared_material", "weak_background"):
+        for name in ("shared_material", "weak_background", "thin_structures"):
             if name in render_options:
                 check_probability(render_options[name], name)
         if "textures" in render_options:

@@ -15,6 +15,7 @@ from data_gen.scene import (
     DIFFICULTY,
     Rig,
     Scene,
+    add_thin_structures,
     check_difficulty,
     check_probability,
     check_textures,
@@ -215,7 +216,8 @@ def _ground_truth(scene: Scene, rig: Rig, left: dict, right: dict, occlusion_rig
 
 
 def pair_name(seed: int, index: int, difficulty: int, rectified: bool, shared_material: float = 0.0,
-              textures: dict[str, float] | None = None, weak_background: float = 0.0) -> str:
+              textures: dict[str, float] | None = None, weak_background: float = 0.0,
+              thin_structures: float = 0.0) -> str:
     """The name of a rendered pair (``name`` of :func:`render_pair`; the CLI's folder names)."""
     kind = "rect" if rectified else "unrect"
     name = f"synth_{kind}_d{difficulty}_s{seed}_{index:06d}" + (f"_m{shared_material:g}" if shared_material else "")
@@ -223,6 +225,8 @@ def pair_name(seed: int, index: int, difficulty: int, rectified: bool, shared_ma
         name += "_t" + "-".join(f"{k}{w:g}" for k, w in sorted(textures.items()) if w > 0)
     if weak_background:
         name += f"_w{weak_background:g}"
+    if thin_structures:
+        name += f"_r{thin_structures:g}"
     return name
 
 
@@ -231,7 +235,8 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
                 max_disp: int | None = None, baseline: float | None = None, distortion: bool | None = None,
                 noise: bool = True, photometric: bool = True, blur: bool = True, specular: bool = True,
                 occlusion_right: bool = False, shared_material: float = 0.0,
-                textures: dict[str, float] | None = None, weak_background: float = 0.0) -> dict:
+                textures: dict[str, float] | None = None, weak_background: float = 0.0,
+                thin_structures: float = 0.0) -> dict:
     """Render one synthetic stereo pair with exact ground truth; a pure function of its arguments.
 
     Args:
@@ -254,6 +259,9 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
         weak_background: probability that the scene's background walls get a weaker texture
             (:func:`data_gen.scene.weaken_background`: objects in front of weakly textured walls, as often in
             photos). A stream of its own, like ``shared_material``; 0 (the default) draws nothing.
+        thin_structures: probability that the scene gets a few thin rods (poles, branches, cables:
+            :func:`data_gen.scene.add_thin_structures`), appended after its objects. A stream of its own, like
+            ``shared_material``; 0 (the default) draws nothing.
 
     Returns:
         dict with ``left``, ``right`` float32 :math:`(3, H, W)` in [0, 1]; ``disparity``, ``disparity_right``,
@@ -271,16 +279,17 @@ def render_pair(seed: int, index: int, difficulty: int = 2, height: int = 256, w
         seed, index, difficulty, height, width, supersample, max_disp, baseline, num_objects)
     shared_material = check_probability(shared_material, "shared_material")
     weak_background = check_probability(weak_background, "weak_background")
+    thin_structures = check_probability(thin_structures, "thin_structures")
     textures = check_textures(textures)
     with single_thread():
         return _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp,
                             baseline, distortion, noise, photometric, blur, specular, occlusion_right,
-                            shared_material, textures, weak_background)
+                            shared_material, textures, weak_background, thin_structures)
 
 
 def _render_pair(seed, index, difficulty, height, width, rectified, supersample, num_objects, max_disp, baseline,
                  distortion, noise, photometric, blur, specular, occlusion_right, shared_material,
-                 textures=None, weak_background=0.0) -> dict:
+                 textures=None, weak_background=0.0, thin_structures=0.0) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence([seed, index]))
     rig = sample_rig(rng, height, width, rectified=rectified, baseline=baseline, distortion=distortion)
     scene = sample_scene(rng, difficulty, rig, max_disp, num_objects, textures)
@@ -290,6 +299,9 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
         share_materials(scene, np.random.default_rng(np.random.SeedSequence([seed, index, 1])), shared_material)
     if weak_background > 0:  # another stream of its own
         weaken_background(scene, np.random.default_rng(np.random.SeedSequence([seed, index, 2])), weak_background)
+    if thin_structures > 0:  # a third stream of its own; rods use the scene's texture mix
+        add_thin_structures(scene, np.random.default_rng(np.random.SeedSequence([seed, index, 3])), rig,
+                            level if textures is None else {**level, "textures": textures}, max_disp, thin_structures)
     if render_module.USE_KERNELS:
         views = [render_view_arrays(scene, rig.left, supersample, specular, second_eye=rig.right.center),
                  render_view_arrays(scene, rig.right, supersample, specular)]
@@ -302,7 +314,8 @@ def _render_pair(seed, index, difficulty, height, width, rectified, supersample,
     if not specular:
         gt["specular"].zero_()
     out = dict(left=images[0], right=images[1], calib=calibration_of(rig, max_disp), max_disp=max_disp,
-               name=pair_name(seed, index, difficulty, rectified, shared_material, textures, weak_background),
+               name=pair_name(seed, index, difficulty, rectified, shared_material, textures, weak_background,
+                              thin_structures),
                difficulty=difficulty, scene=scene,
                rig=rig)
     out.update(gt)

@@ -293,6 +293,53 @@ def weaken_background(scene: Scene, rng: np.random.Generator, probability: float
         wall.material = dataclasses.replace(wall.material, contrast=wall.material.contrast * factor)
 
 
+THIN_COUNT = (1, 6)
+"""Range (uniform integers) of the number of rods an :func:`add_thin_structures` scene gets."""
+THIN_RADIUS_PX = (0.5, 3.0)
+"""Range (log-uniform) of a rod's radius in left-image pixels at its centre's depth."""
+THIN_LENGTH = (0.15, 0.8)
+"""Range (log-uniform) of a rod's length as a fraction of ``min(H, W)`` in left-image pixels."""
+
+
+def add_thin_structures(scene: Scene, rng: np.random.Generator, rig: Rig, level: dict, max_disp: int,
+                        probability: float) -> None:
+    """With ``probability``, add a few thin rods to the scene (in place): poles, branches, cables, legs.
+
+    The sampled objects are blobs, polygons, spheres and cylinders at least a few pixels across (their radius
+    is >= 4 % of the image's smaller side), so a window matcher or a network never meets a surface narrower
+    than its window; photos are full of them (lamp arms, chair legs, poles and signs, branches, wires), and
+    there a matcher that has never seen one paints the background across it. Each rod is a solid
+    :class:`~data_gen.primitives.Cylinder` with a radius of :data:`THIN_RADIUS_PX` pixels and a length of
+    :data:`THIN_LENGTH` of the image's smaller side, its axis at any angle in the image plane (tilted out of it
+    by up to ~27 degrees), in front of the back wall at a disparity drawn as the objects' are, textured with a
+    material of the level. :data:`THIN_COUNT` rods per scene. Both cameras' disparity bounds hold as for every
+    object (bounding sphere). Everything already in the scene is unchanged (``rng`` should be a stream of its
+    own); the rods are appended after the objects.
+    """
+    probability = check_probability(probability, "thin_structures")
+    if probability == 0.0 or rng.random() >= probability:
+        return
+    W, H = rig.left.size
+    f, cx, cy = float(rig.left.K[0, 0]), float(rig.left.K[0, 2]), float(rig.left.K[1, 2])
+    back = scene.objects[0]
+    for _ in range(int(rng.integers(THIN_COUNT[0], THIN_COUNT[1] + 1))):
+        x = rng.uniform(*level["spread"]) * W
+        y = rng.uniform(*level["spread"]) * H
+        ray = np.array([(x - cx) / f, (y - cy) / f, 1.0])
+        z_wall = float(back.intersect(PointRays(np.zeros(3), torch.as_tensor(ray)[None]))[0])  # t = z on this ray
+        d_wall = f * rig.baseline / z_wall if 0.0 < z_wall < math.inf else 0.0
+        d_lo = min(d_wall * 1.15 + 0.02 * max_disp, 0.9 * max_disp)
+        z = f * rig.baseline / rng.uniform(d_lo, max_disp)
+        r_px = math.exp(rng.uniform(math.log(THIN_RADIUS_PX[0]), math.log(THIN_RADIUS_PX[1])))
+        length_px = math.exp(rng.uniform(math.log(THIN_LENGTH[0]), math.log(THIN_LENGTH[1]))) * min(H, W)
+        angle = rng.uniform(0.0, math.pi)
+        axis = np.array([math.cos(angle), math.sin(angle), rng.uniform(-0.5, 0.5)])
+        radius, half = r_px * z / f, 0.5 * length_px * z / f
+        z = max(z, _min_centre_depth(rig, ray, math.hypot(radius, half), max_disp))
+        mat = sample_material(rng, level, z / f)
+        scene.objects.append(Cylinder(z * ray, axis, radius, half, roll=rng.uniform(0, 2 * math.pi), material=mat))
+
+
 def sample_material(rng: np.random.Generator, level: dict, texel_mm_per_px: float) -> Material:
     """A random material for a surface where one pixel covers ``texel_mm_per_px`` scene units."""
     kind = _choice(rng, level["textures"])

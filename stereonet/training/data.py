@@ -60,7 +60,8 @@ class RandomShiftStereo(Dataset):
 
 def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: int, width: int,
                   supersample: int = 2, max_disp: int | None = None, shared_material: float = 0.0,
-                  drop_textures: tuple[str, ...] = (), weak_background: float = 0.0) -> Dataset:
+                  drop_textures: tuple[str, ...] = (), weak_background: float = 0.0,
+                  thin_structures: float = 0.0) -> Dataset:
     if source == "random-shift":
         return RandomShiftStereo(count, seed=seed, height=height, width=width, max_disp=max(1, width // 8))
     if source == "data_gen":
@@ -71,6 +72,8 @@ def _make_dataset(source: str, count: int, seed: int, difficulty: int, height: i
         options = {"shared_material": float(shared_material)}  # 0: the same pairs as before the option existed
         if weak_background:  # 0: the option is not passed (the same pairs and names as before it existed)
             options["weak_background"] = float(weak_background)
+        if thin_structures:  # the same: 0 is not passed
+            options["thin_structures"] = float(thin_structures)
         if drop_textures:  # the level's texture mix without these kinds (none dropped: the option is not passed)
             from data_gen.scene import texture_mix
 
@@ -263,10 +266,11 @@ class PooledCurriculumStream(IterableDataset):
                  rank: int = 0, world_size: int = 1, vertical_jitter: float = 0.0,
                  extra: Dataset | None = None, extra_ratio: float = 0.0, vertical_warp: float = 0.0,
                  shared_material: float = 0.0, drop_textures: tuple[str, ...] = (),
-                 weak_background: float = 0.0, render_scale: int = 1) -> None:
+                 weak_background: float = 0.0, render_scale: int = 1, thin_structures: float = 0.0) -> None:
         self.source, self.seed, self.height, self.width = source, seed, height, width
         self.render_scale = int(render_scale)
         self.shared_material, self.weak_background = float(shared_material), float(weak_background)
+        self.thin_structures = float(thin_structures)
         self.drop_textures = tuple(drop_textures)
         self.extra, self.extra_ratio = extra, float(extra_ratio) if extra is not None else 0.0
         self.vertical_jitter, self.vertical_warp = float(vertical_jitter), float(vertical_warp)
@@ -295,7 +299,7 @@ class PooledCurriculumStream(IterableDataset):
                 ds = _make_dataset(self.source, index + 1, stream_seed, level, self.height * scale,
                                    self.width * scale,
                                    self.supersample, max_disp, self.shared_material, self.drop_textures,
-                                   self.weak_background)
+                                   self.weak_background, self.thin_structures)
                 pool.append(ds[index])
                 pool = pool[-self.pool_size:]
             counter += 1
@@ -387,6 +391,9 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             (``data_gen.render_pair``'s option: objects in front of weakly textured walls, where window matchers
             fatten the foreground, as at most depth edges of photos; 0 = off, the default). Validation pairs are
             rendered without it.
+        thin_structures: probability that a rendered training pair's scene gets a few thin rods (poles,
+            branches, cables; ``data_gen.render_pair``'s option: surfaces narrower than any window, as in photos;
+            0 = off, the default). Validation pairs are rendered without it.
         render_scale: training pairs are rendered at ``render_scale`` times ``height`` x ``width`` (the
             disparity range still drawn for ``width``: the same disparities in pixels) and every draw from the pool
             takes a random ``height`` x ``width`` window of it (:func:`random_crop`): surfaces and textures that
@@ -403,7 +410,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                  vertical_jitter: float = 0.0, val_vertical_jitter: float = 0.0, train: str | None = None,
                  train_ratio: float = 0.5, vertical_warp: float = 0.0, val_vertical_warp: float = 0.0,
                  shared_material: float = 0.0, drop_textures: list[str] | None = None,
-                 weak_background: float = 0.0, render_scale: int = 1) -> None:
+                 weak_background: float = 0.0, render_scale: int = 1, thin_structures: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters()
         from stereonet.checks import StereoInputError
@@ -418,7 +425,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                        f"leave every level a kind to draw, got {drop_textures!r}")
         self.drop_textures = tuple(drop_textures or ())
 
-        for name, value in (("shared_material", shared_material), ("weak_background", weak_background)):
+        for name, value in (("shared_material", shared_material), ("weak_background", weak_background),
+                            ("thin_structures", thin_structures)):
             if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
                 raise StereoInputError(f"--data.{name}: expected a probability in [0, 1], got {value!r}")
         if isinstance(render_scale, bool) or not isinstance(render_scale, int) or render_scale < 1:
@@ -472,7 +480,8 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                         vertical_jitter=hp.vertical_jitter, extra=self.train_extra,
                                         extra_ratio=hp.train_ratio, vertical_warp=hp.vertical_warp,
                                         shared_material=hp.shared_material, drop_textures=self.drop_textures,
-                                        weak_background=hp.weak_background, render_scale=hp.render_scale)
+                                        weak_background=hp.weak_background, render_scale=hp.render_scale,
+                                        thin_structures=hp.thin_structures)
         return DataLoader(stream, batch_size=hp.batch_size, num_workers=hp.num_workers,
                           collate_fn=collate_pairs, persistent_workers=hp.num_workers > 0)
 

@@ -79,9 +79,18 @@ def test_cli_shared_material_names_its_pairs_apart(tmp_path):
     assert pair_name(0, 0, 2, True, 0.5).endswith("_m0.5") and pair_name(0, 0, 2, True) != pair_name(0, 0, 2, True, 0.5)
 
 
+def test_cli_weak_background_and_thin_structures_name_their_pairs(tmp_path):
+    code = main(["--out", str(tmp_path), "--count", "1", "--no-progress", "--height", "48", "--width", "96",
+                 "--supersample", "1", "--weak-background", "1", "--thin-structures", "0.5"])
+    name = pair_name(0, 0, 2, True, weak_background=1.0, thin_structures=0.5)
+    assert code == 0 and [p.name for p in tmp_path.iterdir()] == [name] and name.endswith("_w1_r0.5")
+
+
 @pytest.mark.parametrize("args,param", [(["--difficulty", "9"], "difficulty"), (["--count", "0"], "count"),
                                         (["--max-disp", "500"], "max_disp"),
-                                        (["--shared-material", "1.5"], "shared_material")])
+                                        (["--shared-material", "1.5"], "shared_material"),
+                                        (["--thin-structures", "-1"], "thin_structures"),
+                                        (["--weak-background", "2"], "weak_background")])
 def test_cli_bad_input_exits_with_a_message(tmp_path, capsys, args, param):
     with pytest.raises(SystemExit) as exc:
         main(["--out", str(tmp_path), "--count", "1", "--no-progress", *args])

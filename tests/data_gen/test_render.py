@@ -177,6 +177,8 @@ def test_dataset_workers_match_and_collate():
     (dict(shared_material=1.5), "shared_material"),
     (dict(shared_material="often"), "shared_material"),
     (dict(weak_background=-0.5), "weak_background"),
+    (dict(thin_structures=1.5), "thin_structures"),
+    (dict(thin_structures=float("nan")), "thin_structures"),
     (dict(textures={"marble": 1.0}), "textures"),
     (dict(textures={"bank": -1.0}), "textures"),
     (dict(textures={"bank": 0.0}), "textures"),
@@ -390,3 +392,39 @@ def test_weaken_background_scales_only_the_walls_contrast():
     walls = weak["scene"].num_background
     for a, b in zip(plain["scene"].objects[:walls], weak["scene"].objects[:walls]):
         assert b.material.contrast <= a.material.contrast * WEAK_BACKGROUND_FACTOR[1] + 1e-12
+
+
+def test_thin_structures_add_rods_in_front_of_what_they_cover():
+    """add_thin_structures: probability 0 draws nothing; at 1 the scene keeps its objects and gets THIN_COUNT rods
+    (cylinders at most THIN_RADIUS_PX across at their depth, inside both cameras' disparity bounds); every pixel
+    whose disparity changes shows a nearer surface than before (a rod in front), the rods cover a small share of
+    the view, and the name gets the option."""
+    from data_gen.primitives import Cylinder
+    from data_gen.scene import THIN_COUNT, THIN_RADIUS_PX, add_thin_structures
+
+    plain = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1)
+    rng = np.random.default_rng(3)
+    n = len(plain["scene"].objects)
+    add_thin_structures(plain["scene"], rng, plain["rig"], data_gen.scene.DIFFICULTY[2], plain["max_disp"], 0.0)
+    assert len(plain["scene"].objects) == n and rng.random() == np.random.default_rng(3).random()
+    zero = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1, thin_structures=0.0)
+    assert torch.equal(zero["left"], plain["left"]) and zero["name"] == plain["name"]
+    changed_any = False
+    for seed in (11, 12, 13):
+        base = data_gen.render_pair(seed, 0, difficulty=2, height=H, width=W, supersample=1)
+        thin = data_gen.render_pair(seed, 0, difficulty=2, height=H, width=W, supersample=1, thin_structures=1.0)
+        assert thin["name"] == base["name"] + "_r1"
+        objs, rods = thin["scene"].objects[:len(base["scene"].objects)], thin["scene"].objects[len(base["scene"].objects):]
+        assert [type(o) for o in objs] == [type(o) for o in base["scene"].objects]
+        assert THIN_COUNT[0] <= len(rods) <= THIN_COUNT[1] and all(isinstance(r, Cylinder) for r in rods)
+        f = thin["rig"].focal
+        for rod in rods:
+            assert rod.radius * f / rod.centre[2] <= THIN_RADIUS_PX[1] + 1e-9
+        both = base["valid"] & thin["valid"]
+        d0, d1 = base["disparity"][both], thin["disparity"][both]
+        moved = (d1 - d0).abs() > 1e-3
+        assert bool((d1[moved] > d0[moved]).all())  # only nearer surfaces appear
+        assert float(thin["disparity"][thin["valid"]].max()) <= thin["max_disp"] * (1 + 1e-4)
+        assert float(moved.float().mean()) < 0.3
+        changed_any |= bool(moved.any())
+    assert changed_any

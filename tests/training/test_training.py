@@ -588,6 +588,28 @@ def test_render_probability_reaches_the_rendered_training_pairs_only(option):
         SyntheticStereoDataModule(source="data_gen", **{option: 1.5})
 
 
+def test_thin_structures_reach_the_rendered_training_pairs_only():
+    """``--data.thin_structures``: the training stream's pairs get rods in front (their disparity only grows where
+    it changes), validation pairs are rendered without them, a value outside [0, 1] is one line naming it."""
+    from stereonet.checks import StereoInputError
+    from stereonet.training.data import SyntheticStereoDataModule
+
+    def first(p):
+        dm = SyntheticStereoDataModule(source="data_gen", height=48, width=96, batch_size=1, pool_size=1, reuse=1,
+                                       val_pairs=1, supersample=1, augment=False, thin_structures=p)
+        dm.setup("fit")
+        dm.set_progress(1.0)
+        return next(iter(dm.train_dataloader())), dm.val_items[0]
+
+    (plain, val_plain), (thin, val_thin) = first(0.0), first(1.0)
+    both = plain["valid"] & thin["valid"]
+    moved = (thin["disparity"] - plain["disparity"]).abs() > 1e-3
+    assert bool(moved[both].any()) and bool((thin["disparity"] > plain["disparity"])[both & moved].all())
+    torch.testing.assert_close(val_thin["left"], val_plain["left"])
+    with pytest.raises(StereoInputError, match="--data.thin_structures"):
+        SyntheticStereoDataModule(source="data_gen", thin_structures=1.5)
+
+
 def test_render_scale_renders_larger_and_draws_windows(monkeypatch):
     """``--data.render_scale``: training pairs are rendered that many times larger, with the disparity range drawn
     for the training width, and each draw is a training-size window whose pixels matching outside the window are
