@@ -64,7 +64,9 @@ the same on seeds 5331-5334 (its 4x-schedule run, docs/experiments/dispnet_long4
 docs/experiments/dispnet_pooled.txt) and ``pow2e``/``pow4e``/``powb2e``/``powb4e`` the same on seeds 5339-5342 (smd's
 head on the 4x-schedule dispnet.pt, docs/experiments/smd_head_4x.txt) and ``pow2f``/``pow4f``/``powb2f``/``powb4f`` the
 same on seeds 5343-5346 (its edge-weighted head, docs/experiments/smd_head_edge.txt) and ``pow2g``/``pow4g``/
-``powb2g``/``powb4g`` the same on seeds 5347-5350 (the 8x-schedule DispNet, docs/experiments/dispnet_long8x.txt); any
+``powb2g``/``powb4g`` the same on seeds 5347-5350 (the 8x-schedule DispNet, docs/experiments/dispnet_long8x.txt) and
+``pow2h``/``pow4h``/``thn2h``/``thn4h`` (64 pairs each, difficulties 2 / 4, the last two with thin rods in every scene,
+``thin_structures: 1``) on seeds 5351-5354 (the forty-third session's thin structures, docs/experiments/dispnet_thin.txt); any
 other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -162,7 +164,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "pow2f": (64, 5343, 2), "pow4f": (64, 5344, 4),
         "powb2f": (64, 5345, 2, {"weak_background": 1.0}), "powb4f": (64, 5346, 4, {"weak_background": 1.0}),
         "pow2g": (64, 5347, 2), "pow4g": (64, 5348, 4),
-        "powb2g": (64, 5349, 2, {"weak_background": 1.0}), "powb4g": (64, 5350, 4, {"weak_background": 1.0})}
+        "powb2g": (64, 5349, 2, {"weak_background": 1.0}), "powb4g": (64, 5350, 4, {"weak_background": 1.0}),
+        "pow2h": (64, 5351, 2), "pow4h": (64, 5352, 4),
+        "thn2h": (64, 5353, 2, {"thin_structures": 1.0}), "thn4h": (64, 5354, 4, {"thin_structures": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
