@@ -66,7 +66,9 @@ head on the 4x-schedule dispnet.pt, docs/experiments/smd_head_4x.txt) and ``pow2
 same on seeds 5343-5346 (its edge-weighted head, docs/experiments/smd_head_edge.txt) and ``pow2g``/``pow4g``/
 ``powb2g``/``powb4g`` the same on seeds 5347-5350 (the 8x-schedule DispNet, docs/experiments/dispnet_long8x.txt) and
 ``pow2h``/``pow4h``/``thn2h``/``thn4h`` (64 pairs each, difficulties 2 / 4, the last two with thin rods in every scene,
-``thin_structures: 1``) on seeds 5351-5354 (the forty-third session's thin structures, docs/experiments/dispnet_thin.txt); any
+``thin_structures: 1``) on seeds 5351-5354 (the forty-third session's thin structures, docs/experiments/dispnet_thin.txt)
+and ``pow2i``/``pow4i``/``powb2i``/``powb4i`` as the ``g`` sets on seeds 5355-5358 (smd's head on the 8x-schedule
+DispNet, docs/experiments/smd_head_8x.txt); any
 other spec as
 eval.py reads it. ``compare``
 runs named variants of a matcher on them and prints the table and each pair's bad-2."""
@@ -166,7 +168,9 @@ SETS = {"val2": (12, 5150, 2), "val4": (8, 5151, 4), "val2b": (12, 5152, 2), "va
         "pow2g": (64, 5347, 2), "pow4g": (64, 5348, 4),
         "powb2g": (64, 5349, 2, {"weak_background": 1.0}), "powb4g": (64, 5350, 4, {"weak_background": 1.0}),
         "pow2h": (64, 5351, 2), "pow4h": (64, 5352, 4),
-        "thn2h": (64, 5353, 2, {"thin_structures": 1.0}), "thn4h": (64, 5354, 4, {"thin_structures": 1.0})}
+        "thn2h": (64, 5353, 2, {"thin_structures": 1.0}), "thn4h": (64, 5354, 4, {"thin_structures": 1.0}),
+        "pow2i": (64, 5355, 2), "pow4i": (64, 5356, 4),
+        "powb2i": (64, 5357, 2, {"weak_background": 1.0}), "powb4i": (64, 5358, 4, {"weak_background": 1.0})}
 """spec -> (pairs, seed, difficulty[, render options])."""
 
 
