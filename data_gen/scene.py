@@ -305,16 +305,17 @@ def add_thin_structures(scene: Scene, rng: np.random.Generator, rig: Rig, level:
                         probability: float) -> None:
     """With ``probability``, add a few thin rods to the scene (in place): poles, branches, cables, legs.
 
-    The sampled objects are blobs, polygons, spheres and cylinders at least a few pixels across (their radius
-    is >= 4 % of the image's smaller side), so a window matcher or a network never meets a surface narrower
-    than its window; photos are full of them (lamp arms, chair legs, poles and signs, branches, wires), and
-    there a matcher that has never seen one paints the background across it. Each rod is a solid
+    The sampled objects are blobs, polygons, spheres and cylinders whose radius is >= 4 % of the image's smaller
+    side, so a surface narrower than a matching window is rare in the renders (a narrow or steeply slanted patch
+    now and then); photos are full of them (lamp arms, chair legs, poles and signs, branches, wires), and there
+    a matcher that has never seen one paints the background across it. Each rod is a solid
     :class:`~data_gen.primitives.Cylinder` with a radius of :data:`THIN_RADIUS_PX` pixels and a length of
-    :data:`THIN_LENGTH` of the image's smaller side, its axis at any angle in the image plane (tilted out of it
-    by up to ~27 degrees), in front of the back wall at a disparity drawn as the objects' are, textured with a
-    material of the level. :data:`THIN_COUNT` rods per scene. Both cameras' disparity bounds hold as for every
-    object (bounding sphere). Everything already in the scene is unchanged (``rng`` should be a stream of its
-    own); the rods are appended after the objects.
+    :data:`THIN_LENGTH` of the image's smaller side (both at its centre's depth), its axis at any angle in the
+    image plane (tilted out of it by up to ~27 degrees), its centre in front of the back wall at a disparity
+    drawn as the objects' are, textured with a material of the level. :data:`THIN_COUNT` rods per scene. Both
+    cameras' disparity bounds hold as for every object (bounding sphere; a rod pushed back to fit keeps its
+    size in pixels). Everything already in the scene is unchanged (``rng`` should be a stream of its own); the
+    rods are appended after the objects.
     """
     probability = check_probability(probability, "thin_structures")
     if probability == 0.0 or rng.random() >= probability:
@@ -334,8 +335,14 @@ def add_thin_structures(scene: Scene, rng: np.random.Generator, rig: Rig, level:
         length_px = math.exp(rng.uniform(math.log(THIN_LENGTH[0]), math.log(THIN_LENGTH[1]))) * min(H, W)
         angle = rng.uniform(0.0, math.pi)
         axis = np.array([math.cos(angle), math.sin(angle), rng.uniform(-0.5, 0.5)])
+        size = math.hypot(r_px, 0.5 * length_px) / f  # bounding radius per unit depth (pixel sizes kept)
+        for _ in range(8):  # pushed back to fit both bounds, at the same size in pixels (converges: size << 1)
+            z_fit = _min_centre_depth(rig, ray, size * z, max_disp)
+            if z_fit <= z:
+                break
+            z = z_fit
         radius, half = r_px * z / f, 0.5 * length_px * z / f
-        z = max(z, _min_centre_depth(rig, ray, math.hypot(radius, half), max_disp))
+        z = max(z, _min_centre_depth(rig, ray, math.hypot(radius, half), max_disp))  # the bound, strictly
         mat = sample_material(rng, level, z / f)
         scene.objects.append(Cylinder(z * ray, axis, radius, half, roll=rng.uniform(0, 2 * math.pi), material=mat))
 

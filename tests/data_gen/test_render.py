@@ -289,22 +289,25 @@ def test_camera_effects_change_the_images_not_the_scene():
 RANGE_TOL = 0.01  # relative slack on max_disp
 
 
-@pytest.mark.parametrize("rectified", [True, False])
-def test_both_disparity_maps_stay_in_range_over_many_scenes(rectified):
+@pytest.mark.parametrize("rectified,thin", [(True, 0.0), (False, 0.0), (True, 1.0), (False, 1.0)])
+def test_both_disparity_maps_stay_in_range_over_many_scenes(rectified, thin):
     """Every surface lies in front of both cameras with f B / z <= max_disp (regression: objects near the
-    right camera and side walls tilted past it gave right-view disparities in the thousands); 80 scenes."""
+    right camera and side walls tilted past it gave right-view disparities in the thousands); 80 scenes, also
+    with thin rods in every scene. Every pixel that sees a surface counts, not only the ones marked valid."""
     h, w = 24, 64
     for difficulty in range(data_gen.MAX_DIFFICULTY + 1):
         for index in range(8):
             p = data_gen.render_pair(3, index, difficulty=difficulty, height=h, width=w, rectified=rectified,
-                                     supersample=1, noise=False, photometric=False, blur=False)
+                                     supersample=1, noise=False, photometric=False, blur=False, thin_structures=thin)
             rig, md = p["rig"], p["max_disp"]
             hi = md * (1 + RANGE_TOL)
             v, vr = p["valid"], p["valid_right"]
             assert v.float().mean() > 0.9 and vr.float().mean() > 0.9, (difficulty, index)
             d, dr = p["disparity"][v], p["disparity_right"][vr]
-            z_r = data_gen.render_view(p["scene"], rig.right, supersample=1)["depth"][vr[0]]
-            depth_disp = rig.left.K[0, 0] * rig.baseline / p["depth"][v].double()
+            z_l = data_gen.render_view(p["scene"], rig.left, supersample=1)["depth"]
+            z_r = data_gen.render_view(p["scene"], rig.right, supersample=1)["depth"]
+            z_l, z_r = z_l[torch.isfinite(z_l)], z_r[torch.isfinite(z_r)]
+            depth_disp = rig.left.K[0, 0] * rig.baseline / z_l.double()
             depth_disp_r = rig.right.K[0, 0] * rig.baseline / z_r.double()
             for name, x in (("left", depth_disp), ("right", depth_disp_r)):
                 assert float(x.min()) > 0 and float(x.max()) <= hi, (name, difficulty, index, float(x.max()))
@@ -400,7 +403,7 @@ def test_thin_structures_add_rods_in_front_of_what_they_cover():
     whose disparity changes shows a nearer surface than before (a rod in front), the rods cover a small share of
     the view, and the name gets the option."""
     from data_gen.primitives import Cylinder
-    from data_gen.scene import THIN_COUNT, THIN_RADIUS_PX, add_thin_structures
+    from data_gen.scene import THIN_COUNT, THIN_LENGTH, THIN_RADIUS_PX, add_thin_structures
 
     plain = data_gen.render_pair(11, 0, difficulty=2, height=H, width=W, supersample=1)
     rng = np.random.default_rng(3)
@@ -418,8 +421,12 @@ def test_thin_structures_add_rods_in_front_of_what_they_cover():
         assert [type(o) for o in objs] == [type(o) for o in base["scene"].objects]
         assert THIN_COUNT[0] <= len(rods) <= THIN_COUNT[1] and all(isinstance(r, Cylinder) for r in rods)
         f = thin["rig"].focal
-        for rod in rods:
-            assert rod.radius * f / rod.centre[2] <= THIN_RADIUS_PX[1] + 1e-9
+        for rod in rods:  # pixel sizes kept when a rod is pushed back to fit the disparity bound
+            r_px, length = rod.radius * f / rod.centre[2], 2 * rod.half_length * f / rod.centre[2]
+            assert THIN_RADIUS_PX[0] * 0.95 <= r_px <= THIN_RADIUS_PX[1] + 1e-9
+            assert THIN_LENGTH[0] * 0.95 <= length / min(H, W) <= THIN_LENGTH[1] + 1e-9
+        for key in ("valid", "valid_right"):  # rods inside both bounds: no pixel loses its ground truth
+            assert not bool((base[key] & ~thin[key]).any())
         both = base["valid"] & thin["valid"]
         d0, d1 = base["disparity"][both], thin["disparity"][both]
         moved = (d1 - d0).abs() > 1e-3
@@ -428,3 +435,6 @@ def test_thin_structures_add_rods_in_front_of_what_they_cover():
         assert float(moved.float().mean()) < 0.3
         changed_any |= bool(moved.any())
     assert changed_any
+    flat = data_gen.render_pair(12, 0, difficulty=2, height=H, width=W, supersample=1, thin_structures=1.0,
+                                textures={"flat": 1.0})  # a texture mix given to the scene reaches its rods
+    assert all(o.material.kind == "flat" for o in flat["scene"].objects)
