@@ -51,7 +51,8 @@ class CurriculumCallback(L.Callback):
     def __init__(self, fallback_steps: int = 10_000) -> None:
         self.fallback_steps = fallback_steps
 
-    def _update(self, trainer: L.Trainer, start: bool = False) -> None:
+    def update(self, trainer: L.Trainer, start: bool = False) -> None:
+        """Set the datamodule's progress (and, with ``start``, its stream's start step) from the trainer."""
         dm = trainer.datamodule
         if dm is None or not hasattr(dm, "set_progress"):
             return
@@ -59,10 +60,10 @@ class CurriculumCallback(L.Callback):
         dm.set_progress(progress, trainer.global_step if start else None)
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self._update(trainer, start=True)
+        self.update(trainer, start=True)
 
     def on_train_batch_start(self, trainer: L.Trainer, pl_module: L.LightningModule, batch: Any,
                              batch_idx: int) -> None:
-        self._update(trainer)
+        self.update(trainer)
         pl_module.log("train/difficulty", float(getattr(trainer.datamodule, "difficulty", 0)),
                       on_step=True, on_epoch=False)

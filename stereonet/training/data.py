@@ -474,6 +474,14 @@ class SyntheticStereoDataModule(L.LightningDataModule):
         hp = self.hparams
         trainer = getattr(self, "trainer", None)
         rank, world = (trainer.global_rank, trainer.world_size) if trainer is not None else (0, 1)
+        if trainer is not None:  # Lightning asks for the loader after restoring a checkpoint and starts the stream
+            # (it prefetches a batch) before on_train_start: the start step and difficulty must be set here, or a
+            # resumed run replays the first run's pairs and renders its first batch at the easiest level
+            from stereonet.training.callbacks import CurriculumCallback
+
+            for cb in trainer.callbacks:
+                if isinstance(cb, CurriculumCallback):
+                    cb.update(trainer, start=True)
         stream = PooledCurriculumStream(hp.source, hp.seed, hp.height, hp.width, hp.pool_size, hp.reuse,
                                         hp.augment, self._difficulty, self._start, hp.supersample,
                                         hp.disparity_range, rank=rank, world_size=world,

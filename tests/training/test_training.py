@@ -464,6 +464,39 @@ def test_resume_from_last_checkpoint(tmp_path, monkeypatch):
     assert cli.trainer.global_step == 4
 
 
+def test_resumed_run_continues_the_stream_at_its_step(tmp_path, monkeypatch):
+    """A resumed run's first rendered pairs come from the stream of its restored step at its restored difficulty,
+    not the first run's pairs again (Lightning starts the loader's stream before on_train_start)."""
+    import stereonet.training.data as data_module
+
+    monkeypatch.chdir(tmp_path)
+    config = next(p for p in CONFIGS if p.stem == "siamese")
+    common = ["--config", str(config), *TINY, "--model.init_args.max_disp", "8", "--trainer.logger", "false",
+              "--trainer.val_check_interval", "2", "--trainer.enable_progress_bar", "false",
+              "--trainer.callbacks.init_args.every_n_train_steps", "2", "--data.curriculum_fraction", "0.5",
+              "--data.source", "data_gen", "--data.supersample", "1"]
+    seen = []
+    real = data_module._make_dataset
+
+    def spy(source, count, seed, difficulty, *args, **kwargs):
+        seen.append((seed, difficulty))
+        return real(source, count, seed, difficulty, *args, **kwargs)
+
+    monkeypatch.setattr(data_module, "_make_dataset", spy)
+    cli = _cli([*common, "--trainer.max_steps", "2"])
+    seed = cli.datamodule.hparams.seed
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+    first_run = [s for s, _ in seen if s != cli.datamodule.hparams.val_seed]
+    assert first_run and set(first_run) == {seed}
+    seen.clear()
+    cli = _cli([*common, "--trainer.max_steps", "4"])
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule, ckpt_path="last")
+    resumed = [(s, d) for s, d in seen if s != cli.datamodule.hparams.val_seed]
+    assert resumed and all(s == seed + 7919 * 2 for s, _ in resumed)  # the stream of step 2
+    top = data_module.max_difficulty("data_gen")
+    assert resumed[0][1] == data_module.difficulty_at(2 / 4, top, 0.5, 0)  # the restored level from the first pair
+
+
 def test_sample_max_disp_widens_the_range_within_bounds():
     import data_gen
     from stereonet.training.data import sample_max_disp
