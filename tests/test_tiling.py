@@ -93,4 +93,58 @@ def test_eval_memory_budget(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--memory-budget" in err[0] and "too small" in err[0]
     assert ev.main(["--methods", "bm-sad", "--data", "synthetic:1", "--memory-budget", "-1", "--no-progress"]) == 2
-    assert ev.main(["--methods", "bm-sad", "--data", "synthetic:1", "--memory-budget", "40", "--no-progress"]) == 0
+    whole, strips = tmp_path / "whole.json", tmp_path / "strips.json"
+    assert ev.main(["--methods", "sgm", "--data", "synthetic:1", "--json", str(whole), "--no-progress"]) == 0
+    import stereonet.tiling as tiling
+
+    calls = []
+    real = tiling.plan_strips
+
+    def spy(*args, **kwargs):
+        calls.append(real(*args, **kwargs))
+        return calls[-1]
+
+    tiling.plan_strips = spy
+    try:
+        assert ev.main(["--methods", "sgm", "--data", "synthetic:1", "--memory-budget", "40", "--json", str(strips),
+                        "--no-progress"]) == 0
+    finally:
+        tiling.plan_strips = real
+    assert calls and all(len(plan) > 1 for plan in calls)  # the budget did cut the pair into strips
+    import json
+
+    rows = [json.loads(p.read_text())[0] for p in (whole, strips)]
+    assert abs(rows[0]["bad2"] - rows[1]["bad2"]) <= 0.1, rows  # the issue's tolerance
+
+
+def test_kept_rows_are_copies():
+    """A strip's kept rows do not hold on to the strip's storage (its overlap rows) until the stitching."""
+    from stereonet.tiling import _rows_of
+    from stereonet.types import StereoOutput
+
+    disp = torch.rand(1, 1, 100, 30)
+    kept = _rows_of(StereoOutput(disp, torch.ones_like(disp, dtype=torch.bool)), 20, 60)
+    assert kept.disparity.shape[-2] == 40 and torch.equal(kept.disparity, disp[..., 20:60, :])
+    assert kept.disparity.untyped_storage().nbytes() == kept.disparity.numel() * 4
+    assert kept.valid.untyped_storage().nbytes() == kept.valid.numel()
+
+
+@pytest.mark.parametrize("scale", [2.0, 1.5])
+def test_smd_output_scale_in_strips_lands_on_the_whole_grid(scale):
+    """smd answering on a grid ``scale`` times the input's, in strips: the stitched map has the whole run's shape
+    and the same values away from the seams (the strips start on rows with a whole output row); a scale with
+    no whole output row within 64 input rows is one line when strips are needed."""
+    p = render_pair(5, 0, difficulty=1, height=96, width=128, supersample=1)
+    left, right = p["left"][None], p["right"][None]
+    fn = matchers.get_matcher("smd", upsample=scale)
+    whole = fn(left, right, 32)
+    info: dict = {}
+    tiled = match_with_budget(fn, left, right, 32, overlap=48, info=info, rows_per_strip=128, output_scale=scale)
+    assert info["strips"] == 3 and tiled.disparity.shape == whole.disparity.shape
+    close = (tiled.disparity - whole.disparity).abs() <= scale  # 1 px of the input grid
+    assert float(close.float().mean()) > 0.95  # as at scale 1: the network's context near the seams
+    assert tiled.uncertainty is not None and tiled.uncertainty.shape == whole.uncertainty.shape
+    with pytest.raises(StereoInputError, match="--output-scale: 1.37") as e:
+        match_with_budget(matchers.get_matcher("smd", upsample=1.37), left, right, 32, rows_per_strip=64,
+                          output_scale=1.37)
+    assert "\n" not in str(e.value)

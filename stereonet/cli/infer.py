@@ -585,7 +585,7 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     try:
         with torch.no_grad(), Stopwatch() as clock:
             out = match_with_budget(fn, left, right, int(max_disp - min_disp), budget_mib=st.memory_budget,
-                                    info=tiling)
+                                    info=tiling, output_scale=st.output_scale)
     except (MemoryError, RuntimeError) as e:
         if isinstance(e, RuntimeError) and "not enough memory" not in str(e) and "out of memory" not in str(e):
             raise
