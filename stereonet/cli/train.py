@@ -52,6 +52,22 @@ def main(args: list[str] | None = None, run: bool = True) -> StereoCLI:
         return _cli(args, run)
     except StereoInputError as e:
         raise SystemExit(fail("train.py", e)) from None
+    except ValueError as e:  # the config parser wraps a model's own input check (subclass mode) in its report
+        cause = _input_error_in(e)
+        if cause is None:
+            raise
+        raise SystemExit(fail("train.py", cause)) from None
+
+
+def _input_error_in(error: BaseException) -> StereoInputError | None:
+    """The StereoInputError that caused ``error`` (following ``__cause__`` and ``__context__``), if any."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, StereoInputError):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
 
 
 def _cli(args: list[str] | None, run: bool) -> StereoCLI:

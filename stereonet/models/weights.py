@@ -101,7 +101,11 @@ def load_weights(path: str | os.PathLike, expected: str | None = None) -> tuple[
         state = data["state_dict"]
     if expected is not None and info["model"] != expected:
         raise StereoInputError(f"checkpoint: expected a {expected!r} model, got a {info['model']!r} one in {str(path)!r}")
-    net = build_model(info["model"], dict(info["config"]))
+    try:
+        net = build_model(info["model"], dict(info["config"]))
+    except TypeError as e:  # a config key this version's network does not take (a newer or older file)
+        raise StereoInputError(f"checkpoint: {str(path)!r} holds a {info['model']!r} network whose config "
+                               f"{sorted(info['config'])} this version cannot build ({e})") from e
     try:
         net.load_state_dict(state, strict=True)
     except RuntimeError as e:

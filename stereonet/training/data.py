@@ -435,7 +435,7 @@ class SyntheticStereoDataModule(L.LightningDataModule):
             raise StereoInputError(f"--data.train_ratio: expected a share in (0, 1], got {train_ratio}")
         self.train_extra = open_training_spec(train, height, width) if train else None
         if source not in ("data_gen", "random-shift"):
-            raise ValueError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
+            raise StereoInputError(f"source: expected 'data_gen' or 'random-shift', got {source!r}")
         ctx = multiprocessing.get_context("fork") if hasattr(os, "fork") else multiprocessing.get_context()
         self._difficulty = ctx.Value("i", min_difficulty)
         self._start = ctx.Value("l", 0)

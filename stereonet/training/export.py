@@ -87,7 +87,16 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--tag", default="val/epe")
     args = parser.parse_args(argv)
     if args.command == "weights":
-        export_weights(args.ckpt, args.out, args.notes)
+        from stereonet.checks import StereoInputError
+        from stereonet.cli.common import fail
+
+        out = Path(args.out)
+        if out.is_dir() or not out.parent.is_dir():
+            return fail("stereonet.training.export", f"out: expected a file path in an existing folder, got {out}")
+        try:
+            export_weights(args.ckpt, out, args.notes)
+        except (StereoInputError, FileNotFoundError) as e:  # bad input: one line, exit 2, nothing written
+            return fail("stereonet.training.export", e)
         return 0
     runs = {}
     for spec in args.runs:

@@ -90,6 +90,22 @@ class StereoModule(L.LightningModule):
         if trained_on:
             checkpoint["stereonet_model"]["trained_on"] = trained_on
 
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """A checkpoint of another network (``--ckpt_path`` of another config's run) is one line naming both
+        networks, before Lightning's tensor-by-tensor mismatch report; an older checkpoint without the record
+        loads as before."""
+        held = checkpoint.get("stereonet_model", {})
+        if held.get("model", self.model_name) != self.model_name:
+            raise StereoInputError(f"--ckpt_path: the checkpoint holds a {held['model']!r} network; this config "
+                                   f"trains a {self.model_name!r} one")
+        ours = {name: tuple(t.shape) for name, t in self.state_dict().items()}
+        theirs = {name: tuple(t.shape) for name, t in checkpoint.get("state_dict", {}).items()}
+        if theirs and ours != theirs:
+            differ = sorted(set(ours) ^ set(theirs)) or sorted(k for k in ours if ours[k] != theirs[k])
+            raise StereoInputError(f"--ckpt_path: the checkpoint's {held.get('model', 'network')!r} tensors do not "
+                                   f"fit this config's ({len(differ)} differ, e.g. {differ[0]!r}; checkpoint config "
+                                   f"{held.get('config')}, this config {self.model_config()})")
+
     @property
     def progress(self) -> float:
         """Training progress in [0, 1]: steps over ``max_steps`` or time over ``max_time``, the larger."""
@@ -283,9 +299,9 @@ class SMDModule(StereoModule):
                  freeze_backbone: bool = False, context: int = 0, context_grey: bool = True) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if edge_weight < 1.0:
-            raise ValueError(f"edge_weight: expected >= 1, got {edge_weight}")
+            raise StereoInputError(f"edge_weight: expected >= 1, got {edge_weight}")
         if freeze_backbone and not init_backbone:
-            raise ValueError("freeze_backbone: needs init_backbone (the DispNet weights to keep fixed)")
+            raise StereoInputError("freeze_backbone: needs init_backbone (the DispNet weights to keep fixed)")
         self.save_hyperparameters()
         self.model = SMDNet(max_disp=max_disp, channels=channels, hidden=tuple(hidden), aggregation=aggregation,
                             upsample=upsample, matching=matching, context=context, context_grey=context_grey)
@@ -293,7 +309,7 @@ class SMDModule(StereoModule):
             backbone, info = load_weights(init_backbone, expected="dispnet")
             wanted = _dispnet_config(max_disp, channels, aggregation, upsample, matching)
             if dict(info["config"]) != wanted:
-                raise ValueError(f"init_backbone: {init_backbone!r} holds a DispNet with config {info['config']}, "
+                raise StereoInputError(f"init_backbone: {init_backbone!r} holds a DispNet with config {info['config']}, "
                                  f"expected {wanted}")
             self.model.backbone.load_state_dict(backbone.state_dict())
         if freeze_backbone:
@@ -371,20 +387,20 @@ class SiameseModule(StereoModule):
         super().__init__(lr, weight_decay, schedule_steps)
         self.save_hyperparameters()
         if not 0.0 <= edge_share <= 1.0 or edge_radius < 1:
-            raise ValueError(f"edge_share, edge_radius: expected a share in [0, 1] and >= 1 px, got {edge_share}, "
+            raise StereoInputError(f"edge_share, edge_radius: expected a share in [0, 1] and >= 1 px, got {edge_share}, "
                              f"{edge_radius}")
         if loss not in ("hinge", "bce"):
-            raise ValueError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
+            raise StereoInputError(f"loss: expected 'hinge' or 'bce', got {loss!r}")
         if distill < 0:
-            raise ValueError(f"distill: expected >= 0, got {distill}")
+            raise StereoInputError(f"distill: expected >= 0, got {distill}")
         if sgm_loss < 0 or not sgm_margin > 0 or not 0 <= learned_weight <= 1:
-            raise ValueError(f"sgm_loss, sgm_margin, learned_weight: expected >= 0, > 0 and in [0, 1], got "
+            raise StereoInputError(f"sgm_loss, sgm_margin, learned_weight: expected >= 0, > 0 and in [0, 1], got "
                              f"{sgm_loss}, {sgm_margin}, {learned_weight}")
         self.model = SiameseNet(channels=channels, layers=layers, inputs=inputs, census_window=census_window)
         if init_weights is not None:
             start, _ = load_weights(init_weights, expected="siamese")
             if self._shape(start) != self._shape(self.model):
-                raise ValueError(f"init_weights: {init_weights} holds a tower of {self._shape(start)}, "
+                raise StereoInputError(f"init_weights: {init_weights} holds a tower of {self._shape(start)}, "
                                  f"expected {self._shape(self.model)}")
             self.model.load_state_dict(start.state_dict())
         self._teacher: list[torch.nn.Module] = []  # a list hides it from state_dict, optimiser and device moves
@@ -491,9 +507,9 @@ class PenaltyModule(StereoModule):
         from stereonet.matchers.local import SGM_DEFAULTS
 
         if not margin > 0:
-            raise ValueError(f"margin: expected > 0 bits, got {margin!r}")
+            raise StereoInputError(f"margin: expected > 0 bits, got {margin!r}")
         if not p2_max >= SGM_DEFAULTS["P2"]:
-            raise ValueError(f"p2_max: expected >= sgm's P2 ({SGM_DEFAULTS['P2']}), got {p2_max!r}")
+            raise StereoInputError(f"p2_max: expected >= sgm's P2 ({SGM_DEFAULTS['P2']}), got {p2_max!r}")
         self.save_hyperparameters()
         self.model = PenaltyNet(channels=channels, dilations=tuple(dilations), paths=SGM_DEFAULTS["paths"],
                                 p2_max=p2_max, inputs=inputs)
@@ -605,11 +621,11 @@ class RefineModule(StereoModule):
                  balance: bool = False, filtered_bases: tuple[str, ...] = ()) -> None:
         super().__init__(lr, weight_decay, schedule_steps)
         if not tolerance > 0:
-            raise ValueError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
+            raise StereoInputError(f"tolerance: expected > 0 pixels, got {tolerance!r}")
         if target not in TARGETS:
-            raise ValueError(f"target: expected one of {', '.join(TARGETS)}, got {target!r}")
+            raise StereoInputError(f"target: expected one of {', '.join(TARGETS)}, got {target!r}")
         if balance and (mode != "select" or target == "any"):
-            raise ValueError(f"balance: needs mode 'select' with target 'keep' or 'decisive', got mode {mode!r}, "
+            raise StereoInputError(f"balance: needs mode 'select' with target 'keep' or 'decisive', got mode {mode!r}, "
                              f"target {target!r}")
         self.save_hyperparameters()
         self.model = RefineNet(channels=channels, dilations=tuple(dilations), mode=mode, radii=tuple(radii),

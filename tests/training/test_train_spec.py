@@ -130,3 +130,15 @@ def test_config_usage_errors_are_one_line(tmp_path, monkeypatch, capsys, case):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("train.py: error:") and needle in err[0], err
+
+
+def test_bad_model_setting_is_one_line(tmp_path, monkeypatch, capsys):
+    """A model option out of its range (here the Siamese loss) is bad input: one line naming it, exit 2."""
+    from stereonet.cli.train import main
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e, mock.patch.object(sys, "argv", ["train.py"]):
+        main([*CONFIG, *TINY, "--model.init_args.loss", "mse"], run=False)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("train.py: error:") and "loss: expected 'hinge' or 'bce'" in err[0], err

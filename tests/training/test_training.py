@@ -497,6 +497,53 @@ def test_resumed_run_continues_the_stream_at_its_step(tmp_path, monkeypatch):
     assert resumed[0][1] == data_module.difficulty_at(2 / 4, top, 0.5, 0)  # the restored level from the first pair
 
 
+def test_export_bad_input_is_one_line(tmp_path, capsys):
+    """python -m stereonet.training.export weights: a missing checkpoint, a file that is not one, a config this
+    version cannot build and an output folder that does not exist are one line each, exit 2, nothing written."""
+    from stereonet.models.weights import load_weights, save_weights
+    from stereonet.training.export import main
+
+    net = DispNetModule(max_disp=16, channels=8).model
+    good = tmp_path / "good.pt"
+    save_weights(good, "dispnet", {"max_disp": 16, "channels": 8}, net)
+    odd = tmp_path / "odd.pt"
+    save_weights(odd, "dispnet", {"max_disp": 16, "channels": 8, "no_such_option": 1}, net)
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    for ckpt, out, word in ((tmp_path / "missing.ckpt", tmp_path / "a.pt", "not found"),
+                            (junk, tmp_path / "b.pt", "not a readable"),
+                            (odd, tmp_path / "c.pt", "cannot build"),
+                            (good, tmp_path / "no" / "d.pt", "out:")):
+        assert main(["weights", str(ckpt), str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and word in err[0], err
+        assert not out.exists()
+    with pytest.raises(StereoInputError, match="no_such_option"):
+        load_weights(odd)
+    assert main(["weights", str(good), str(tmp_path / "e.pt")]) == 0 and (tmp_path / "e.pt").is_file()
+
+
+def test_resuming_another_network_is_one_line(tmp_path, monkeypatch):
+    """--ckpt_path of another model's run, or of the same model with other tensor shapes: one line naming the
+    networks (or the first tensor that differs) instead of Lightning's mismatch report."""
+    monkeypatch.chdir(tmp_path)
+    siamese = next(p for p in CONFIGS if p.stem == "siamese")
+    common = [*TINY, "--model.init_args.max_disp", "8", "--trainer.logger", "false",
+              "--trainer.enable_progress_bar", "false", "--trainer.callbacks.init_args.every_n_train_steps", "1",
+              "--trainer.max_steps", "1", "--trainer.val_check_interval", "1"]
+    cli = _cli(["--config", str(siamese), *common])
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+    last = tmp_path / "lightning_logs" / "siamese" / "checkpoints" / "last.ckpt"
+    dispnet = next(p for p in CONFIGS if p.stem == "dispnet")
+    cli = _cli(["--config", str(dispnet), *common, "--trainer.max_steps", "2"])
+    with pytest.raises(StereoInputError, match="holds a 'siamese' network; this config trains a 'dispnet' one"):
+        cli.trainer.fit(cli.model, datamodule=cli.datamodule, ckpt_path=str(last))
+    cli = _cli(["--config", str(siamese), *common, "--trainer.max_steps", "2", "--model.init_args.channels", "8"])
+    with pytest.raises(StereoInputError, match="tensors do not fit") as e:
+        cli.trainer.fit(cli.model, datamodule=cli.datamodule, ckpt_path=str(last))
+    assert "\n" not in str(e.value)
+
+
 def test_sample_max_disp_widens_the_range_within_bounds():
     import data_gen
     from stereonet.training.data import sample_max_disp
