@@ -50,6 +50,14 @@ class CurriculumCallback(L.Callback):
 
     def __init__(self, fallback_steps: int = 10_000) -> None:
         self.fallback_steps = fallback_steps
+        self.reached = 0  # the highest level set so far; saved in checkpoints, so that a continuation with a
+        # larger max_steps (its progress pulled back inside the ramp) does not go back to easier renders
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"reached": self.reached}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.reached = int(state_dict.get("reached", 0))
 
     def update(self, trainer: L.Trainer, start: bool = False) -> None:
         """Set the datamodule's progress (and, with ``start``, its stream's start step) from the trainer."""
@@ -57,7 +65,8 @@ class CurriculumCallback(L.Callback):
         if dm is None or not hasattr(dm, "set_progress"):
             return
         progress = trainer_progress(trainer, self.fallback_steps)
-        dm.set_progress(progress, trainer.global_step if start else None)
+        dm.set_progress(progress, trainer.global_step if start else None, floor=self.reached)
+        self.reached = max(self.reached, int(getattr(dm, "difficulty", 0)))
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.update(trainer, start=True)

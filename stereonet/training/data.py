@@ -457,12 +457,13 @@ class SyntheticStereoDataModule(L.LightningDataModule):
                                            hp.val_vertical_warp)
                 self.val_items.append(item)
 
-    def set_progress(self, progress: float, start_step: int | None = None) -> None:
-        """Set the training difficulty from the progress in [0, 1] (called by the curriculum callback);
-        ``start_step`` (the global step a run starts or resumes at) offsets the rendering seeds."""
+    def set_progress(self, progress: float, start_step: int | None = None, floor: int = 0) -> None:
+        """Set the training difficulty from the progress in [0, 1] (called by the curriculum callback), never
+        below ``floor`` (the level a resumed run had reached); ``start_step`` (the global step a run starts or
+        resumes at) offsets the rendering seeds."""
         hp = self.hparams
-        self._difficulty.value = difficulty_at(progress, max_difficulty(hp.source), hp.curriculum_fraction,
-                                               hp.min_difficulty)
+        self._difficulty.value = max(int(floor), difficulty_at(progress, max_difficulty(hp.source),
+                                                               hp.curriculum_fraction, hp.min_difficulty))
         if start_step is not None:
             self._start.value = int(start_step)
 

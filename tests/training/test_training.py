@@ -544,6 +544,37 @@ def test_resuming_another_network_is_one_line(tmp_path, monkeypatch):
     assert "\n" not in str(e.value)
 
 
+def test_a_continuation_keeps_the_level_it_reached(tmp_path, monkeypatch):
+    """A run resumed with a larger max_steps (its progress pulled back inside the curriculum's ramp) keeps
+    rendering at the level the first run reached (saved with the curriculum callback), not easier pairs."""
+    import stereonet.training.data as data_module
+
+    monkeypatch.chdir(tmp_path)
+    config = next(p for p in CONFIGS if p.stem == "siamese")
+    common = ["--config", str(config), *TINY, "--model.init_args.max_disp", "8", "--trainer.logger", "false",
+              "--trainer.val_check_interval", "4", "--trainer.enable_progress_bar", "false",
+              "--trainer.callbacks.init_args.every_n_train_steps", "4", "--data.curriculum_fraction", "0.5",
+              "--data.source", "data_gen", "--data.supersample", "1"]
+    seen = []
+    real = data_module._make_dataset
+
+    def spy(source, count, seed, difficulty, *args, **kwargs):
+        seen.append((seed, difficulty))
+        return real(source, count, seed, difficulty, *args, **kwargs)
+
+    monkeypatch.setattr(data_module, "_make_dataset", spy)
+    cli = _cli([*common, "--trainer.max_steps", "4"])
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+    top = data_module.max_difficulty("data_gen")
+    assert cli.datamodule.difficulty == top
+    seen.clear()
+    cli = _cli([*common, "--trainer.max_steps", "40"])  # step 4 of 40: progress 0.1, inside the ramp
+    assert data_module.difficulty_at(4 / 40, top, 0.5, 0) < top
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule, ckpt_path="last")
+    levels = [d for s, d in seen if s != cli.datamodule.hparams.val_seed]
+    assert levels and set(levels) == {top}
+
+
 def test_sample_max_disp_widens_the_range_within_bounds():
     import data_gen
     from stereonet.training.data import sample_max_disp
