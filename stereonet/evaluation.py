@@ -162,7 +162,7 @@ def pair_metrics(out: StereoOutput, item: dict) -> dict[str, float]:
     """:func:`stereonet.metrics.evaluate` of one prediction against the item's ground truth (with SEE)."""
     from stereonet import metrics
 
-    gt = _batch(item["disparity"]).to(out.disparity)
+    gt = _batch(item["disparity"]).to(out.disparity.device)  # its own dtype: metrics compute in float64
     occ = item.get("occlusion")
     with torch.no_grad():
         res = metrics.evaluate(out.disparity, gt, _batch(item["valid"]).bool(), pred_valid=out.valid,

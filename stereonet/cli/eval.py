@@ -14,8 +14,9 @@ line naming the file).
 
 What the numbers mean:
 - Rates (bad-1/2/4, D1, density) are percentages 0-100. EPE is in pixels. Every metric is computed per pair
-  over the pixels with ground truth and then averaged over the pairs (per-image averaging, as the
-  Middlebury and KITTI tables do).
+  over the pixels with ground truth and then averaged over the pairs (per-image averaging, as the Middlebury
+  tables do; KITTI's devkit pools the pixels of all images instead, so a KITTI row here is comparable with
+  published KITTI numbers only for a single pair).
 - bad-t and D1 count the pixels a method leaves invalid as errors; EPE and SEE have no value for them and
   average the predicted pixels only, so read them with ``density`` (the share of GT pixels predicted), as
   :mod:`stereonet.metrics` defines. ``*_noc`` (non-occluded) and ``*_occ`` metrics appear when the dataset

@@ -71,8 +71,9 @@ def middlebury2001_records(root: Path) -> list[PairRecord]:
 
 
 # ------------------------------------------------------------------------------------ Middlebury 2003
-MIDDLEBURY2003_EXPECTED = ("scene folders with im2.png, im6.png, disp2.png (value / 4, quarter size) and "
-                           "optional disp6.png, or those files in DIR itself")
+MIDDLEBURY2003_EXPECTED = ("scene folders with im2.png, im6.png, disp2.png (value / 4 at quarter size, / 2 at "
+                           "half, / 1 at full size) and optional disp6.png, or those files in DIR itself")
+_MB2003_SCALES = {450: 4.0, 900: 2.0, 1800: 1.0}  # image width -> disparity PNG scale (Cones and Teddy)
 
 
 def _mb2003_files(folder: Path):
@@ -80,8 +81,10 @@ def _mb2003_files(folder: Path):
     return paths if all(paths) else None
 
 
-def middlebury2003_records(root: Path, scale: float = 4.0) -> list[PairRecord]:
-    """Middlebury 2003 Cones/Teddy (Scharstein & Szeliski, CVPR 2003), quarter size: ``disp2.png`` = value / 4.
+def middlebury2003_records(root: Path, scale: float | None = None) -> list[PairRecord]:
+    """Middlebury 2003 Cones/Teddy (Scharstein & Szeliski, CVPR 2003): ``disp2.png`` = value / 4 at quarter size
+    (450 px wide), / 2 at half (900), / 1 at full size (1800); ``scale`` None reads it from the width, another
+    width is bad input naming the file.
 
     Occlusion (True = not visible in the right view) from a left-right check of ``disp2`` against the
     right-view ground truth ``disp6`` when present.
@@ -89,7 +92,14 @@ def middlebury2003_records(root: Path, scale: float = 4.0) -> list[PairRecord]:
     records = []
     for scene in scene_folders(root, lambda p: _mb2003_files(p) is not None):
         left, right, disp = _mb2003_files(scene)
-        records.append(PairRecord(_name(root, scene), left, right, disp, scale,
+        pair_scale = scale
+        if pair_scale is None:
+            width = image_size(left)[1]
+            if width not in _MB2003_SCALES:
+                raise StereoInputError(f"{left}: expected a Middlebury 2003 view of width 450 (quarter size), 900 "
+                                       f"(half) or 1800 (full), got {width} px")
+            pair_scale = _MB2003_SCALES[width]
+        records.append(PairRecord(_name(root, scene), left, right, disp, pair_scale,
                                   right_disparity=find_file(scene, "disp6", (".png", ".pgm"))))
     return records
 

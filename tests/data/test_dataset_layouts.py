@@ -381,3 +381,24 @@ def test_real_reads_every_real_layout_in_the_shared_folder(tmp_path, monkeypatch
     ds = load_dataset("real")
     assert sorted(ds.names) == ["eth3d/delivery_area_1l", "middlebury2006/ThirdSize/Aloe"] and ds.source == "shared"
     assert [s.split(":")[0] for s in ev.expand_data_specs("real")] == ["middlebury2006", "eth3d"]
+
+
+# ------------------------------------------------------------------------------------------ Middlebury 2003
+@pytest.mark.parametrize("width,scale", [(450, 4), (900, 2), (1800, 1)])
+def test_middlebury2003_scale_follows_the_image_size(tmp_path, width, scale):
+    """disp2.png is value / 4 at quarter size, / 2 at half, / 1 at full size: read from the view's width (a
+    half-size Cones was read at a quarter of its disparities before); another width is one line naming the file."""
+    import cv2
+
+    scene = tmp_path / "cones"
+    scene.mkdir()
+    img = np.full((8, width, 3), 128, np.uint8)
+    for name in ("im2.png", "im6.png"):
+        cv2.imwrite(str(scene / name), img)
+    cv2.imwrite(str(scene / "disp2.png"), np.full((8, width), 40, np.uint8))
+    item = load_dataset(f"middlebury2003:{tmp_path}")[0]
+    assert float(item["disparity"].max()) == pytest.approx(40 / scale)
+    cv2.imwrite(str(scene / "im2.png"), np.full((8, 500, 3), 128, np.uint8))
+    with pytest.raises(StereoInputError, match="width 450") as e:
+        load_dataset(f"middlebury2003:{tmp_path}")
+    _one_line_error(e, scene / "im2.png")
