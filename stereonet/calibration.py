@@ -132,6 +132,13 @@ def read_kitti_calibration(path: str | os.PathLike, cameras: tuple[int, int] = (
 
     ``cameras``: (left, right) camera indices; (2, 3) is the colour pair (KITTI 2015 image_2/image_3,
     KITTI 2012 colored_0/colored_1), (0, 1) the grey pair. Translations are in metres.
+
+    The images these matrices describe are rectified (one rotation, rows aligned), so the rig is returned as
+    rectified: R = I and the baseline along x only, ``t = ((K2^-1 P_r - K1^-1 P_l)_x, 0, 0)``, as KITTI's own
+    depth ``f B / d`` uses it. The y and z parts of that difference (a few mm: the cameras' centres in the
+    common rectified frame) are dropped; kept, they made the rig look unrectified (beyond
+    :meth:`~stereonet.types.Calibration.is_rectified`'s tolerance) and infer.py re-rectified the already
+    rectified images (a 0.3 degree rotation and new padding).
     """
     p = existing_file(path)
     values = _key_values(p, ":")
@@ -162,7 +169,8 @@ def read_kitti_calibration(path: str | os.PathLike, cameras: tuple[int, int] = (
             size = (w, h)
         except (ValueError, OverflowError):
             raise fail(p, f"malformed {s_key!r}: expected 'width height', got {values[s_key]!r}") from None
-    return _build(p, K1, K2, np.eye(3), t_r - t_l, size, doffs=float(K2[0, 2] - K1[0, 2]))
+    t = np.array([t_r[0] - t_l[0], 0.0, 0.0])
+    return _build(p, K1, K2, np.eye(3), t, size, doffs=float(K2[0, 2] - K1[0, 2]))
 
 
 # ------------------------------------------------------------------------------------------ OpenCV
@@ -218,7 +226,8 @@ def read_opencv_calibration(path: str | os.PathLike) -> Calibration:
     D1 = values["D1"][0] if "D1" in values else None
     D2 = values["D2"][0] if "D2" in values else None
     size = values["size"][0] if "size" in values else None
-    doffs = values["doffs"][0] if "doffs" in values else 0.0
+    # without one, doffs is the principal points' difference, as the Middlebury and KITTI readers take it
+    doffs = values["doffs"][0] if "doffs" in values else float(matrices["K2"][0, 2] - matrices["K1"][0, 2])
     ndisp = values["ndisp"][0] if "ndisp" in values else None
     return _build(p, matrices["K1"], matrices["K2"], matrices["R"], matrices["T"], size, D1, D2, doffs=doffs,
                   ndisp=ndisp)

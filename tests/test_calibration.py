@@ -60,9 +60,9 @@ def test_kitti_raw_cam_to_cam(tmp_path):
     K = np.array([[721.5377, 0, 609.5593], [0, 721.5377, 172.854], [0, 0, 1]])
     t2 = np.linalg.solve(K, [44.85728, 0.2163791, 0.002745884])
     t3 = np.linalg.solve(K, [-339.5242, 2.199936, 0.002729905])
-    np.testing.assert_allclose(c.t.numpy(), t3 - t2, rtol=1e-9)
+    np.testing.assert_allclose(c.t.numpy(), [(t3 - t2)[0], 0.0, 0.0], rtol=1e-9)  # along x: KITTI's images are rectified
     assert 0.53 < c.baseline < 0.54 and c.t[0] < 0  # right camera ~0.54 m to the right: X_r = X_l - B
-    assert c.doffs == 0.0
+    assert c.doffs == 0.0 and c.is_rectified()  # infer.py uses the images as they are
 
 
 def test_kitti_odometry_style_and_camera_choice(tmp_path):
@@ -241,3 +241,17 @@ def test_infer_takes_the_image_size_of_a_two_file_calibration_from_the_images(tm
 
     assert json.loads((out / "info.json").read_text())["rectified"] == "calibrated"
     assert (out / "rectified_left.png").is_file() and (out / "depth.pfm").is_file()
+
+
+def test_opencv_file_without_doffs_takes_the_principal_points_difference(tmp_path):
+    """A rectified rig whose cameras' cx differ (P1/P2 from stereoRectify without CALIB_ZERO_DISPARITY), written
+    without a doffs key: doffs = cx2 - cx1, as the Middlebury and KITTI readers take it (was 0: depth off)."""
+    path = tmp_path / "rig.yaml"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("K1", np.array([[700.0, 0, 300], [0, 700, 240], [0, 0, 1]]))
+    fs.write("K2", np.array([[700.0, 0, 340], [0, 700, 240], [0, 0, 1]]))
+    fs.write("R", np.eye(3))
+    fs.write("T", np.array([[-120.0], [0.0], [0.0]]))
+    fs.release()
+    c = read_calibration(path)
+    assert c.is_rectified() and c.doffs == pytest.approx(40.0)

@@ -378,11 +378,18 @@ def write_rectified_calibration(path: Path, rect, unit: str | None) -> None:
         fs.write("K", rect.calib.K1.numpy())
         fs.write("baseline", float(rect.calib.baseline))
         fs.write("baseline_unit", unit or "unknown (the unit of the calibration's T)")
+        reversed_rig = bool(getattr(rect, "reversed", False))
         for name in ("R1", "R2", "P1", "P2", "Q"):
             value = getattr(rect, name)
             if value is not None:
-                fs.write(name, np.asarray(value, dtype=np.float64))
-        fs.write("convention", "X_rect_left = R1 X_left; X_rect_right = R2 X_right; [X Y Z W]^T = Q [u v d 1]^T")
+                value = np.asarray(value, dtype=np.float64)
+                if name == "Q" and reversed_rig:  # OpenCV's Q is for its negative d; disparity.pfm holds -d
+                    value = value @ np.diag([1.0, 1.0, -1.0, 1.0])
+                fs.write(name, value)
+        fs.write("reversed", int(reversed_rig))
+        fs.write("convention", "X_rect_left = R1 X_left; X_rect_right = R2 X_right; [X Y Z W]^T = Q [u v d 1]^T "
+                 "with d as in disparity.pfm" + (" (x_second - x_first > 0: the second camera sits to the left; "
+                                                  "P2 keeps OpenCV's signed baseline)" if reversed_rig else ""))
         fs.release()
 
 
@@ -853,7 +860,8 @@ def calibration_unit(path: Path) -> str | None:
         return "m"
     import re
 
-    m = re.search(r'^\s*"?unit"?\s*:\s*"?(mm|cm|m)"?\s*,?\s*$', text, re.MULTILINE)
+    m = re.search(r'^\s*"?unit"?\s*:\s*"?(mm|cm|m)"?\s*,?\s*$', text, re.MULTILINE)  # YAML, JSON
+    m = m or re.search(r"<unit>\s*\"?(mm|cm|m)\"?\s*</unit>", text)  # OpenCV XML (stereonet-calibrate --out x.xml)
     return m.group(1) if m else None
 
 

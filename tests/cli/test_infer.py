@@ -458,6 +458,17 @@ def test_reversed_unrectified_rig_stays_upright(tmp_path, capsys):
     assert code == 0, err
     info = json.loads((tmp_path / "rev" / "info.json").read_text())
     assert info["reversed_rig"] is True and info["epipolar_median_row_error_px"] < 1.0
+    from stereonet.io import read_disparity
+
+    fs = cv2.FileStorage(str(tmp_path / "rev" / "rectified_calib.yaml"), cv2.FILE_STORAGE_READ)
+    Q, flag = fs.getNode("Q").mat(), int(fs.getNode("reversed").real())
+    fs.release()
+    disp, valid = read_disparity(tmp_path / "rev" / "disparity.pfm")
+    depth, has = read_disparity(tmp_path / "rev" / "depth.pfm")
+    v, u = np.nonzero(valid & has)
+    X = np.stack([u, v, disp[v, u], np.ones_like(u)]).astype(np.float64)
+    X = Q @ X
+    assert flag == 1 and np.allclose(X[2] / X[3], depth[v, u], rtol=1e-3)  # Q applies to disparity.pfm as written
     fwd, _ = read_ply(tmp_path / "fwd" / "cloud.ply")  # first camera = data_gen's left camera
     rev, _ = read_ply(tmp_path / "rev" / "cloud.ply")  # first camera = data_gen's right camera
     fwd_in_right = fwd @ R.T + t  # X_r = R X_l + t
@@ -805,3 +816,17 @@ def test_transparent_pixels_are_never_an_answer(tmp_path, capsys):
     assert code == 0 and "transparent pixels" in err
     disp, valid = read_disparity(tmp_path / "out" / "disparity.pfm")
     assert not valid[:, :20].any() and valid[:, 40:].mean() > 0.9
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".json", ".xml"])
+def test_calibration_unit_is_read_from_every_opencv_format(tmp_path, suffix):
+    """The unit stereonet-calibrate stores is found in a YAML, JSON or XML file (XML's was missed: no
+    depth_mm.png and units 'unknown')."""
+    from stereonet.cli.infer import calibration_unit
+
+    path = tmp_path / f"rig{suffix}"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("K1", np.eye(3))
+    fs.write("unit", "mm")
+    fs.release()
+    assert calibration_unit(path) == "mm"
