@@ -294,6 +294,7 @@ class Settings:
     alpha: float = 1.0
     unit: str | None = None  # unit of the calibration's baseline; None = unknown
     cloud_frame: str = "rectified"
+    cloud_min_confidence: float = 0.0  # cloud.ply keeps the valid pixels with at least this confidence (0: all)
     output_scale: float = 1.0  # the matcher's output grid / the processed images (SMD's continuous head)
     memory_budget: float = float(DEFAULT_BUDGET_MIB)  # MiB a matcher call may use; larger pairs run in strips
     align: bool = True  # correct a residual vertical offset of the (rectified) right view (stereonet.geometry.align)
@@ -621,9 +622,6 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
     padded = not bool(content.all())
     if padded or min_disp:
         out.valid = out.valid & content
-    confidence = out.confidence
-    if confidence is None and out.uncertainty is not None:
-        confidence = torch.exp(-out.uncertainty.float())
     if st.fill:
         from stereonet.evaluation import apply_fill
 
@@ -633,6 +631,9 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
             out.valid = out.valid & content
     if mirror:
         out = mirror_output(out)
+    confidence = out.confidence  # after the mirror, on the first image's grid like the disparity
+    if confidence is None and out.uncertainty is not None:
+        confidence = torch.exp(-out.uncertainty.float())
     disparity = out.disparity + min_disp_out if min_disp else out.disparity
     disp, valid = disparity[0, 0].float().cpu(), out.valid[0, 0].cpu()
     info["density"] = 100.0 * float(valid.float().mean())
@@ -670,7 +671,15 @@ def process_pair(pair: Pair, out_dir: Path, method: str, options: dict, max_disp
             info["units"]["depth_mm.png"] = "uint16 millimetres, 0 = no depth (KITTI/RealSense convention)"
         viz.save_png(out_dir / "depth.png", viz.colorize_depth(depth[0, 0].numpy(), st.unit or "?",
                                                                has_depth.numpy()))
-        points, colors = disparity_to_points(disparity, out.valid, depth_calib, colours)
+        keep = out.valid
+        if st.cloud_min_confidence > 0:
+            if confidence is None:
+                info["warnings"].append(f"--cloud-min-confidence: {method} returns no confidence; the cloud keeps "
+                                        "every valid pixel")
+            else:
+                keep = keep & (confidence >= st.cloud_min_confidence)
+                info["cloud_min_confidence"] = st.cloud_min_confidence
+        points, colors = disparity_to_points(disparity, keep, depth_calib, colours)
         info["cloud_frame"] = "rectified left camera"
         if rect is not None and rect.R1 is not None and st.cloud_frame == "original":
             points = points @ rect.R1.to(points.dtype).to(points.device)  # X_orig = R1^T X_rect (rows)
@@ -739,6 +748,9 @@ def build_parser() -> OneLineParser:
                         "fitted to SIFT matches, is corrected when it reaches 0.25 px)")
     p.add_argument("--cloud-frame", choices=("rectified", "original"), default="rectified",
                    help="frame of cloud.ply when the pair is rectified first (default: rectified left camera)")
+    p.add_argument("--cloud-min-confidence", type=float, default=0.0, metavar="C",
+                   help="cloud.ply keeps only pixels whose confidence (confidence.pfm, 0..1) is at least C: drops "
+                        "unsure and filled pixels (default 0: every valid pixel, filled ones too)")
     return p
 
 
@@ -788,6 +800,8 @@ def _prepare(args) -> tuple[list[Pair], str, dict, object, torch.device]:
         raise StereoInputError(f"--output-scale: expected 0.25 <= S <= 4, got {args.output_scale}")
     if not 0 <= args.alpha <= 1:
         raise StereoInputError(f"--alpha: expected 0 <= A <= 1, got {args.alpha}")
+    if not 0 <= args.cloud_min_confidence <= 1:
+        raise StereoInputError(f"--cloud-min-confidence: expected 0 <= C <= 1, got {args.cloud_min_confidence}")
     if args.max_disp is not None and args.min_disp >= args.max_disp:
         raise StereoInputError(f"--min-disp: expected less than --max-disp {args.max_disp}, got {args.min_disp}")
     try:
@@ -915,7 +929,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     tmp.chmod(0o777 & ~_umask())  # mkdtemp's folder is private (0700); OUT gets a folder's usual mode
     failures: list[str] = []
     settings = Settings(fill=args.fill, scale=args.scale, min_disp=args.min_disp, alpha=args.alpha, unit=args.unit,
-                        cloud_frame=args.cloud_frame, output_scale=args.output_scale,
+                        cloud_frame=args.cloud_frame, cloud_min_confidence=args.cloud_min_confidence,
+                        output_scale=args.output_scale,
                         memory_budget=args.memory_budget, align=not args.no_align)
     try:
         from tqdm import tqdm

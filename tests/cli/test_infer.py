@@ -295,6 +295,27 @@ def test_confidence_and_depth_outputs_with_units(pair_files, tmp_path, capsys):
     assert read_array(out / "depth.png").shape[1] > depth.shape[1]  # the colour bar beside the map
 
 
+def test_cloud_min_confidence_keeps_the_sure_pixels(pair_files, tmp_path, capsys):
+    """--cloud-min-confidence C: cloud.ply keeps the valid pixels whose confidence.pfm is at least C (filled ones,
+    confidence 0, go); 0 keeps every valid pixel; a value outside [0, 1] is one line."""
+    from stereonet.io import read_pfm, read_ply
+
+    calib = write_calib(tmp_path / "c.txt")
+    common = [*pair_files, "--method", "sgm", "--calib", calib, "--fill"]
+    code, err = run_main(capsys, *common, "-o", tmp_path / "all")
+    assert code == 0, err
+    code, err = run_main(capsys, *common, "-o", tmp_path / "sure", "--cloud-min-confidence", "0.3")
+    assert code == 0, err
+    every, _ = read_ply(tmp_path / "all" / "cloud.ply")
+    sure, _ = read_ply(tmp_path / "sure" / "cloud.ply")
+    conf = read_pfm(tmp_path / "sure" / "confidence.pfm")
+    info = json.loads((tmp_path / "sure" / "info.json").read_text())
+    assert len(sure) == int((conf >= 0.3).sum()) == info["points"] and 0 < len(sure) < len(every)
+    assert info["cloud_min_confidence"] == 0.3
+    code, err = run_main(capsys, *common, "-o", tmp_path / "bad", "--cloud-min-confidence", "1.5")
+    assert code == 2 and "--cloud-min-confidence" in one_line_error(err) and not (tmp_path / "bad").exists()
+
+
 def test_scale_halves_the_disparity(pair_files, tmp_path, capsys):
     from stereonet.io import read_disparity
 
