@@ -277,7 +277,7 @@ def test_left_and_right_of_different_lengths(rig, tmp_path, capsys):
     (data / "right" / "right_03.png").unlink()
     code, _, err = run(capsys, data / "left", data / "right", "--board", "9x6", "--square", SQUARE,
                        "-o", tmp_path / "out.yaml")
-    assert_refused(code, err, tmp_path, "RIGHT", "LEFT (4)", "got 3")
+    assert_refused(code, err, tmp_path, "RIGHT", "without a partner: left_03.png")  # paired by number
 
 
 @pytest.fixture

@@ -135,9 +135,19 @@ VIDEO_FRAMES = _VideoFrames()
 
 # ------------------------------------------------------------------------------------------ arguments
 
+def _frame_number(path: Path) -> str | None:
+    """The last run of digits in a file's stem, without leading zeros (``left_05`` -> ``5``), or None."""
+    import re
+
+    runs = re.findall(r"\d+", path.stem)
+    return str(int(runs[-1])) if runs else None
+
+
 def find_pairs(left: str, right: str) -> list[Pair]:
     """Two files -> one pair; two videos -> one pair per frame; two folders or two globs -> image files paired
-    in sorted order."""
+    by the number in their names when both sides are numbered alike (``left_05``/``right_05``; a number on
+    only one side is bad input naming it, so a shot deleted from one folder cannot shift every later pair),
+    else in sorted order (e.g. two cameras numbering their files independently)."""
     lp, rp = Path(left), Path(right)
     videos = [p.suffix.lower() in VIDEO_EXTS for p in (lp, rp)]
     if lp.is_file() and rp.is_file() and any(videos):
@@ -169,6 +179,19 @@ def find_pairs(left: str, right: str) -> list[Pair]:
         return files
 
     lefts, rights = listing(left, lp, "LEFT"), listing(right, rp, "RIGHT")
+    keys_l, keys_r = [_frame_number(f) for f in lefts], [_frame_number(f) for f in rights]
+    if None not in keys_l + keys_r and len(set(keys_l)) == len(lefts) and len(set(keys_r)) == len(rights):
+        common = set(keys_l) & set(keys_r)
+        if common and (len(common) < len(lefts) or len(common) < len(rights)):  # numbered alike, some unmatched
+            alone_l = [f.name for f, k in zip(lefts, keys_l) if k not in common]
+            alone_r = [f.name for f, k in zip(rights, keys_r) if k not in common]
+            raise StereoInputError(
+                f"RIGHT: expected an image with the same number for every LEFT image (pairs are matched by the "
+                f"numbers in their names); without a partner: {', '.join((alone_l + alone_r)[:4])}"
+                + (" ..." if len(alone_l) + len(alone_r) > 4 else ""))
+        if common:
+            by_key = dict(zip(keys_r, rights))
+            rights = [by_key[k] for k in keys_l]
     if len(lefts) != len(rights):
         raise StereoInputError(f"RIGHT: expected as many images as LEFT ({len(lefts)}), got {len(rights)}")
     names: list[str] = []

@@ -851,3 +851,28 @@ def test_calibration_unit_is_read_from_every_opencv_format(tmp_path, suffix):
     fs.write("unit", "mm")
     fs.release()
     assert calibration_unit(path) == "mm"
+
+
+def test_folders_pair_by_the_numbers_in_their_names(tmp_path):
+    """Folders numbered alike pair by number (left_10 with right_10 whatever the sort order); a shot missing on
+    one side is one line naming the unpaired files instead of shifting every later pair; two independent
+    numberings (two phones) pair in sorted order."""
+    from stereonet.checks import StereoInputError
+    from stereonet.cli.infer import find_pairs
+
+    def folder(name, stems):
+        d = tmp_path / name
+        d.mkdir()
+        for s in stems:
+            (d / f"{s}.png").write_bytes(b"")
+        return str(d)
+
+    pairs = find_pairs(folder("l1", ["left_1", "left_10", "left_2"]),
+                       folder("r1", ["right_01", "right_02", "right_10"]))
+    assert [(p.left.stem, p.right.stem) for p in pairs] == [("left_1", "right_01"), ("left_10", "right_10"),
+                                                            ("left_2", "right_02")]
+    with pytest.raises(StereoInputError, match="without a partner: left_03.png, right_06.png"):
+        find_pairs(folder("l2", [f"left_0{i}" for i in (1, 2, 3, 4, 5)]),
+                   folder("r2", [f"right_0{i}" for i in (1, 2, 4, 5, 6)]))
+    pairs = find_pairs(folder("l3", ["IMG_1000", "IMG_1001"]), folder("r3", ["IMG_5000", "IMG_5001"]))
+    assert [(p.left.stem, p.right.stem) for p in pairs] == [("IMG_1000", "IMG_5000"), ("IMG_1001", "IMG_5001")]
