@@ -442,7 +442,7 @@ def align_vertically(left, right, right_content, pl: np.ndarray, pr: np.ndarray,
     right = align_right(right, model)
     right_content = align_right(right_content[None, None].float(), model)[0, 0] > 0.5
     pr = pr.copy()
-    pr[:, 1] -= model.dy(pl[:, 0], pl[:, 1])
+    pr[:, 1] -= model.dy(pr[:, 0], pl[:, 1])  # the model's x is the right view's column
     print(f"{PROG}: {pair.left.name}: right view aligned: it was up to {model.largest(w, h):.2f} px off-row (a plane "
           f"fitted to {model.matches} SIFT matches; --no-align keeps it as it is)", file=sys.stderr)
     return right, right_content, pr

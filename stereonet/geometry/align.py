@@ -7,7 +7,9 @@ their accuracy (model card, thirty-third session: on renders with the right view
 11.7 to 20.4 %, `sgm-refine`'s from 10.3 to 17.0 %).
 
 The offset is modelled as a plane over the image, ``dy(x, y) = a + b x + c y`` (pixels; a global shift, a small
-relative rotation, a small scale difference), fitted by least squares to the vertical offsets of SIFT matches
+relative rotation, a small scale difference) at the right view's column ``x`` and the left view's row ``y`` (where
+:func:`align_right` applies it: a fit at the left column would leave ``b d`` px at disparity ``d``), fitted by least
+squares to the vertical offsets of SIFT matches
 (:func:`~stereonet.features.matching.match_sift`) whose horizontal offset is a plausible disparity, with iterated
 rejection of outliers (3 robust standard deviations). :func:`align_right` resamples the right view along the columns so
 that ``right'(x, y) = right(x, y + dy(x, y))``; the left view, and so the left-view disparity, are unchanged.
@@ -33,7 +35,8 @@ MAX_VERTICAL = 4.0
 
 @dataclass(frozen=True)
 class VerticalMisalignment:
-    """``dy(x, y) = a + b x + c y`` in pixels (right minus left, pixel centres at integers), from ``matches`` inlier
+    """``dy(x, y) = a + b x + c y`` in pixels (right minus left; ``x`` the right view's column, ``y`` the left view's
+    row; pixel centres at integers), from ``matches`` inlier
     matches whose offsets scatter by ``spread`` px (robust standard deviation) around the plane; ``error``: the
     largest standard error of the fitted ``dy`` at the image's corners (px)."""
 
@@ -77,7 +80,7 @@ def fit_vertical_misalignment(pts_left: np.ndarray, pts_right: np.ndarray, width
     p1, p2 = np.asarray(pts_left, np.float64), np.asarray(pts_right, np.float64)
     disp, dy = p1[:, 0] - p2[:, 0], p2[:, 1] - p1[:, 1]
     keep = (np.abs(disp) <= limit + 1.0) & (np.abs(dy) <= MAX_VERTICAL)
-    x, y, dy = p1[keep, 0], p1[keep, 1], dy[keep]
+    x, y, dy = p2[keep, 0], p1[keep, 1], dy[keep]  # where align_right evaluates it: right column, target row
     if len(dy) < min_matches:
         return None
     inliers = np.abs(dy - np.median(dy)) <= 0.5  # the bulk first: repeated patterns give matches a row or two off

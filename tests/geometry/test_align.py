@@ -14,12 +14,13 @@ from stereonet.geometry.align import (
 )
 
 
-def _matches(a, b, c, n=200, seed=0, outliers=0):
+def _matches(a, b, c, n=200, seed=0, outliers=0, disp_range=(2, 30), sign=1.0):
+    """Matches whose right row is the left row plus ``a + b x_r + c y_l`` (x_r: the right view's column, where a
+    roll of the right view acts), plus 0.05 px noise; ``sign`` -1: a reversed rig (negative disparities)."""
     rng = np.random.default_rng(seed)
     left = np.stack([rng.uniform(0, 300, n), rng.uniform(0, 200, n)], 1)
-    disp = rng.uniform(2, 30, n)
-    right = np.stack([left[:, 0] - disp, left[:, 1] + a + b * left[:, 0] + c * left[:, 1]
-                      + rng.normal(0, 0.05, n)], 1)
+    x_r = left[:, 0] - sign * rng.uniform(*disp_range, n)
+    right = np.stack([x_r, left[:, 1] + a + b * x_r + c * left[:, 1] + rng.normal(0, 0.05, n)], 1)
     if outliers:  # repeated patterns: a row or two off
         right[:outliers, 1] += rng.choice([-2.0, 1.5, 2.5], outliers)
     return left, right
@@ -34,9 +35,18 @@ def test_the_plane_is_recovered_despite_outliers_and_implausible_matches_are_ign
     assert model.c == pytest.approx(-0.001, abs=3e-4) and model.matches <= 160 and model.error < 0.05
     assert needs_alignment(model, 300, 200)
     assert fit_vertical_misalignment(left[:10], right[:10], 300, 200) is None  # too few matches
-    mirrored = right.copy()
-    mirrored[:, 0] = 2 * left[:, 0] - right[:, 0]  # a reversed rig: the same offsets at negative disparities
-    assert fit_vertical_misalignment(left, mirrored, 300, 200, max_disp=40).a == pytest.approx(model.a)
+    left_m, mirrored = _matches(0.6, 0.002, -0.001, outliers=40, sign=-1.0)  # a reversed rig
+    mirrored_model = fit_vertical_misalignment(left_m, mirrored, 300, 200, max_disp=40)
+    assert mirrored_model.a == pytest.approx(0.6, abs=0.03) and mirrored_model.b == pytest.approx(0.002, abs=2e-4)
+
+
+def test_the_plane_is_fitted_where_align_right_applies_it():
+    """A roll of the right view (dy grows with its own column) at disparities up to 120 px: the plane is fitted at
+    the right column, so it explains the offsets to the noise (a fit at the left column left b d = 0.6 px)."""
+    left, right = _matches(0.2, 0.005, 0.0, disp_range=(0, 120))
+    model = fit_vertical_misalignment(left, right, 300, 200, max_disp=128)
+    assert model.b == pytest.approx(0.005, abs=2e-4) and model.a == pytest.approx(0.2, abs=0.03)
+    assert model.spread < 0.08  # the 0.05 px noise, not the disparity-dependent part
 
 
 def test_an_aligned_pair_is_not_corrected_and_a_scattered_fit_is_not_trusted():
