@@ -391,11 +391,19 @@ def _stereo_rectify_opencv(calib: Calibration, alpha: float, out_h: int, out_w: 
     H2 = P2[:, :3] @ R2 @ calib.K2.inverse()
     f = float(P1[0, 0])
     baseline = -float(P2[0, 3]) / f
+    if abs(baseline) < 1e-9 * max(calib.baseline, 1e-300):  # OpenCV put the baseline along y (P2[1, 3])
+        raise StereoInputError("calib: the rig's baseline is vertical; OpenCV rectifies it along the columns, which "
+                               "the matchers here do not search (rotate both images by 90 degrees first)")
     doffs = float(P2[0, 2] - P1[0, 2])
+    # a reversed rig (the second camera on the left): OpenCV's P2[0, 3] = +f B, negative disparities; the
+    # rectified rig is described with its positive baseline and matched mirrored, as the kornia method does
+    reversed_rig = baseline < 0
     rect_calib = Calibration.rectified(
-        f, float(P1[0, 2]), float(P1[1, 2]), baseline, image_size=(out_w, out_h), doffs=doffs
+        f, float(P1[0, 2]), float(P1[1, 2]), abs(baseline), image_size=(out_w, out_h),
+        doffs=doffs,
     )
-    return Rectification(None, None, H1, H2, P1, P2, Q, rect_calib, None, R1=R1, R2=R2, original=calib)
+    return Rectification(None, None, H1, H2, P1, P2, Q, rect_calib, None, R1=R1, R2=R2, original=calib,
+                         reversed=reversed_rig)
 
 
 def rectify_calibrated(

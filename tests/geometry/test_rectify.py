@@ -297,3 +297,20 @@ def test_hartley_shape_matching_keeps_rows_and_local_shape():
     assert torch.allclose(J1[0], J2[0], atol=1e-9)  # the x row; the y row is fixed by F
     with pytest.raises(ValueError, match="match"):
         hartley_homographies(F, p1, p2, SIZE, match="bogus")
+
+
+def test_opencv_method_on_a_reversed_rig_and_a_vertical_one():
+    """method="opencv" on a rig whose second camera sits on the left: marked reversed with a positive rectified
+    baseline (depth works), as the kornia method does; a vertical rig (OpenCV rectifies along columns) is one line."""
+    from stereonet.geometry import is_reversed_rig, stereo_rectify
+
+    K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
+    rev = Calibration(K, K, np.eye(3), np.array([0.1, 0.0, 0.002]), image_size=SIZE)
+    assert is_reversed_rig(rev)
+    for method in ("kornia", "opencv"):
+        rect = stereo_rectify(rev, method=method)
+        assert rect.reversed and rect.calib.baseline > 0 and float(rect.calib.t[0]) < 0, method
+    up = Calibration(K, K, np.eye(3), np.array([0.0, -0.1, 0.0]), image_size=SIZE)
+    with pytest.raises(StereoInputError, match="baseline is vertical") as e:
+        stereo_rectify(up, method="opencv")
+    assert "\n" not in str(e.value)
