@@ -159,7 +159,17 @@ def test_calibrates_a_rendered_rig_to_the_truth(rig, tmp_path, capsys):
     fs = cv2.FileStorage(str(out), cv2.FILE_STORAGE_READ)
     assert fs.getNode("unit").string() == "mm" and int(fs.getNode("views_used").real()) == VIEWS
     assert fs.getNode("rms_px").real() < 0.2 and fs.getNode("rectified_row_error_px").real() < 0.1
+    E, F = fs.getNode("E").mat(), fs.getNode("F").mat()
     fs.release()
+    t = calib.t.numpy()
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    np.testing.assert_allclose(E, tx @ calib.R.numpy(), rtol=1e-9, atol=1e-12)  # OpenCV's E = [T]x R
+    X1 = np.array([[30.0, -20.0, 600.0], [-50.0, 40.0, 900.0]])  # two points in front of the rig (mm)
+    X2 = X1 @ calib.R.numpy().T + t
+    x1 = (X1 @ calib.K1.numpy().T)
+    x2 = (X2 @ calib.K2.numpy().T)
+    x1, x2 = x1 / x1[:, 2:], x2 / x2[:, 2:]
+    assert np.abs(np.einsum("ij,jk,ik->i", x2, F, x1)).max() < 1e-6  # x2^T F x1 = 0
     preview = cv2.imread(str(tmp_path / "rig_preview.png"))
     assert preview.shape == (H, 2 * W, 3)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.yaml", "rig_preview.png"]  # no temporary left
@@ -338,3 +348,17 @@ def test_missing_folder(tmp_path, capsys):
 def test_detect_board_finds_nothing_in_an_image_too_small_to_show_it(shape):
     board = Board(9, 6, 25.0)
     assert detect_board(board, np.full(shape, 128, np.uint8)) is None  # not an OpenCV assertion
+
+
+def test_videos_are_refused_in_one_line(tmp_path, capsys):
+    """Two videos (infer.py's frame-by-frame input) are not board images: one line naming LEFT."""
+    for name in ("left.avi", "right.avi"):
+        writer = cv2.VideoWriter(str(tmp_path / name), cv2.VideoWriter_fourcc(*"MJPG"), 5, (64, 48))
+        if not writer.isOpened():
+            pytest.skip("this OpenCV build cannot write MJPG video")
+        for _ in range(2):
+            writer.write(np.full((48, 64, 3), 128, np.uint8))
+        writer.release()
+    code, _, err = run(capsys, tmp_path / "left.avi", tmp_path / "right.avi", "--board", "9x6", "--square", SQUARE,
+                       "-o", tmp_path / "out.yaml")
+    assert_refused(code, err, tmp_path, "LEFT", "videos")

@@ -167,12 +167,13 @@ def calibrate_rig(board: Board, left: Sequence[Detection | None], right: Sequenc
     mono = {}
     for side, dets, attr in (("left", left, "rms_left"), ("right", right, "rms_right")):
         keep = [v for v in views if dets[v.index] is not None]
-        for _ in range(MAX_ROUNDS + 1):
+        for round_ in range(MAX_ROUNDS + 1):
             _, K, D, per_view = _mono(board, [dets[v.index] for v in keep], image_size, k3)
             for v, e in zip(keep, per_view):
                 setattr(v, attr, float(e))
             bad = outlier_views(per_view)
-            if not bad.any() or len(keep) - int(bad.sum()) < 3:
+            # the last round drops nothing: the intrinsics kept are always those of a fit without dropped views
+            if not bad.any() or len(keep) - int(bad.sum()) < 3 or round_ == MAX_ROUNDS:
                 break
             for v, b in zip(keep, bad):
                 if b and v.used:

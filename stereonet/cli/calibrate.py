@@ -147,6 +147,18 @@ def print_table(result, file=None) -> None:
               file=file)
 
 
+def essential_and_fundamental(calib) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's ``E = [T]x R`` and ``F = K2^-T E K1^-1`` (scaled to ``F[2, 2] = 1`` when it is not ~0) of a rig
+    ``X2 = R X1 + T``: ``x2^T F x1 = 0`` for undistorted pixel coordinates of one point."""
+    R, t = calib.R.numpy(), calib.t.numpy()
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    E = tx @ R
+    F = np.linalg.inv(calib.K2.numpy()).T @ E @ np.linalg.inv(calib.K1.numpy())
+    if abs(F[2, 2]) > 1e-12 * np.abs(F).max():
+        F = F / F[2, 2]
+    return E, F
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -170,6 +182,9 @@ def _run(args) -> int:
 
     board, out, preview = _check_arguments(args)
     pairs = find_pairs(args.left, args.right)
+    if any(p.frame is not None for p in pairs):
+        raise StereoInputError("LEFT: expected two folders or globs of board images, got videos (extract the "
+                               "frames that show the board, e.g. with ffmpeg, and pass their folders)")
     progress = not args.no_progress and sys.stderr.isatty()
     left, right, size = detect_views(board, pairs, progress)
     names = [(p.left.name, p.right.name) for p in pairs]
@@ -200,6 +215,7 @@ def _run(args) -> int:
                    "per_view_rms_px": per_view, "rectified_row_error_px": shown.row_error_px}
     if args.unit is None:
         del extra["unit"]  # infer.py reads `unit` as mm/cm/m; an unknown unit is simply absent
+    extra["E"], extra["F"] = essential_and_fundamental(calib)
     if board.dictionary is not None:
         extra["charuco_dictionary"] = board.dictionary
         extra["charuco_marker"] = float(board.marker)
