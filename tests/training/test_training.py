@@ -464,6 +464,21 @@ def test_resume_from_last_checkpoint(tmp_path, monkeypatch):
     assert cli.trainer.global_step == 4
 
 
+def _spy_renders(monkeypatch) -> list[tuple[int, int]]:
+    """(seed, difficulty) of every data_gen set the training data module builds, in order."""
+    import stereonet.training.data as data_module
+
+    seen: list[tuple[int, int]] = []
+    real = data_module._make_dataset
+
+    def spy(source, count, seed, difficulty, *args, **kwargs):
+        seen.append((seed, difficulty))
+        return real(source, count, seed, difficulty, *args, **kwargs)
+
+    monkeypatch.setattr(data_module, "_make_dataset", spy)
+    return seen
+
+
 def test_resumed_run_continues_the_stream_at_its_step(tmp_path, monkeypatch):
     """A resumed run's first rendered pairs come from the stream of its restored step at its restored difficulty,
     not the first run's pairs again (Lightning starts the loader's stream before on_train_start)."""
@@ -475,14 +490,7 @@ def test_resumed_run_continues_the_stream_at_its_step(tmp_path, monkeypatch):
               "--trainer.val_check_interval", "2", "--trainer.enable_progress_bar", "false",
               "--trainer.callbacks.init_args.every_n_train_steps", "2", "--data.curriculum_fraction", "0.5",
               "--data.source", "data_gen", "--data.supersample", "1"]
-    seen = []
-    real = data_module._make_dataset
-
-    def spy(source, count, seed, difficulty, *args, **kwargs):
-        seen.append((seed, difficulty))
-        return real(source, count, seed, difficulty, *args, **kwargs)
-
-    monkeypatch.setattr(data_module, "_make_dataset", spy)
+    seen = _spy_renders(monkeypatch)
     cli = _cli([*common, "--trainer.max_steps", "2"])
     seed = cli.datamodule.hparams.seed
     cli.trainer.fit(cli.model, datamodule=cli.datamodule)
@@ -555,14 +563,7 @@ def test_a_continuation_keeps_the_level_it_reached(tmp_path, monkeypatch):
               "--trainer.val_check_interval", "4", "--trainer.enable_progress_bar", "false",
               "--trainer.callbacks.init_args.every_n_train_steps", "4", "--data.curriculum_fraction", "0.5",
               "--data.source", "data_gen", "--data.supersample", "1"]
-    seen = []
-    real = data_module._make_dataset
-
-    def spy(source, count, seed, difficulty, *args, **kwargs):
-        seen.append((seed, difficulty))
-        return real(source, count, seed, difficulty, *args, **kwargs)
-
-    monkeypatch.setattr(data_module, "_make_dataset", spy)
+    seen = _spy_renders(monkeypatch)
     cli = _cli([*common, "--trainer.max_steps", "4"])
     cli.trainer.fit(cli.model, datamodule=cli.datamodule)
     top = data_module.max_difficulty("data_gen")
